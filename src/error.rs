@@ -1,0 +1,67 @@
+//! The one error type of the library: every fallible call returns [`Result`].
+
+use std::path::PathBuf;
+
+/// Everything that can go wrong in vkdr, with enough context to act on.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// The Vulkan loader or a layer could not be found or started.
+    #[error("Vulkan is not usable here: {0}")]
+    Loader(String),
+    /// A Vulkan call returned an error code.
+    #[error("Vulkan call {call} failed: {result}")]
+    Vulkan { call: &'static str, result: String },
+    /// No physical device fits (or `VKDR_DEVICE` named none).
+    #[error("no suitable Vulkan device: {0}")]
+    NoDevice(String),
+    /// The chosen device lacks features the engine needs.
+    #[error("device '{device}' lacks required features: {}", missing.join(", "))]
+    MissingFeatures {
+        device: String,
+        missing: Vec<String>,
+    },
+    /// Device memory could not be allocated.
+    #[error("GPU memory allocation failed for '{name}': {reason}")]
+    Allocation { name: String, reason: String },
+    /// A fence or wait did not signal in time (a software driver can hang instead of
+    /// reporting device loss).
+    #[error("timed out after {seconds} s waiting for {what}")]
+    Timeout { what: &'static str, seconds: f64 },
+    /// The validation layer reported errors.
+    #[error("Vulkan validation reported {} error(s):\n{}", .0.len(), .0.join("\n"))]
+    Validation(Vec<String>),
+    /// A request exceeds what the device can do (image size, buffer range, ...).
+    #[error("device limit exceeded: {0}")]
+    Limit(String),
+    /// Reading or writing a file failed.
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// A file could be read but its content is wrong.
+    #[error("{path}: {message}")]
+    Format { path: PathBuf, message: String },
+    /// An argument handed in by the caller is invalid.
+    #[error("invalid input: {0}")]
+    InvalidInput(String),
+}
+
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+impl Error {
+    pub(crate) fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+        Error::Io {
+            path: path.into(),
+            source,
+        }
+    }
+
+    pub(crate) fn format(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
+        Error::Format {
+            path: path.into(),
+            message: message.into(),
+        }
+    }
+}

@@ -1,0 +1,190 @@
+//! Buffers in device memory through gpu-allocator, with upload and readback.
+
+use ash::vk;
+use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme};
+use gpu_allocator::MemoryLocation;
+
+use super::{vk_err, Context, Recorder};
+use crate::error::{Error, Result};
+
+/// Where a buffer lives and what it is for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BufferKind {
+    /// Device memory: storage, index, transfer source and destination.
+    Device,
+    /// Host-visible memory the device reads (staging uploads).
+    Upload,
+    /// Host-visible memory the device writes and the host reads back.
+    Readback,
+}
+
+/// A Vulkan buffer with its memory. Freed in `Drop` (see the lifetime model in `gpu`).
+pub struct Buffer {
+    ctx: Context,
+    pub(crate) raw: vk::Buffer,
+    allocation: Option<Allocation>,
+    size: u64,
+    name: String,
+}
+
+impl Buffer {
+    /// A buffer of `size` bytes (at least 4: Vulkan has no empty buffers).
+    pub fn new(ctx: &Context, name: &str, size: u64, kind: BufferKind) -> Result<Self> {
+        let size = size.max(4).next_multiple_of(4);
+        let usage = vk::BufferUsageFlags::STORAGE_BUFFER
+            | vk::BufferUsageFlags::TRANSFER_SRC
+            | vk::BufferUsageFlags::TRANSFER_DST
+            | match kind {
+                BufferKind::Device => vk::BufferUsageFlags::INDEX_BUFFER,
+                _ => vk::BufferUsageFlags::empty(),
+            };
+        let device = ctx.device();
+        let info = vk::BufferCreateInfo::default()
+            .size(size)
+            .usage(usage)
+            .sharing_mode(vk::SharingMode::EXCLUSIVE);
+        // SAFETY: valid device and create info.
+        let raw = unsafe { device.create_buffer(&info, None) }.map_err(vk_err("vkCreateBuffer"))?;
+        // SAFETY: `raw` was just created on this device.
+        let requirements = unsafe { device.get_buffer_memory_requirements(raw) };
+        let location = match kind {
+            BufferKind::Device => MemoryLocation::GpuOnly,
+            BufferKind::Upload => MemoryLocation::CpuToGpu,
+            BufferKind::Readback => MemoryLocation::GpuToCpu,
+        };
+        let allocation = ctx.with_allocator(|a| {
+            a.allocate(&AllocationCreateDesc {
+                name,
+                requirements,
+                location,
+                linear: true,
+                allocation_scheme: AllocationScheme::GpuAllocatorManaged,
+            })
+        });
+        let allocation = match allocation {
+            Ok(a) => a,
+            Err(e) => {
+                // SAFETY: the buffer has no memory bound and was never used.
+                unsafe { device.destroy_buffer(raw, None) };
+                return Err(Error::Allocation {
+                    name: name.into(),
+                    reason: format!("{size} bytes: {e}"),
+                });
+            }
+        };
+        // SAFETY: memory and offset come from an allocation that fits `requirements`.
+        unsafe { device.bind_buffer_memory(raw, allocation.memory(), allocation.offset()) }
+            .map_err(vk_err("vkBindBufferMemory"))?;
+        ctx.name_object(raw, name);
+        Ok(Self {
+            ctx: ctx.clone(),
+            raw,
+            allocation: Some(allocation),
+            size,
+            name: name.into(),
+        })
+    }
+
+    /// A device buffer holding `data`.
+    pub fn from_slice<T: bytemuck::Pod>(ctx: &Context, name: &str, data: &[T]) -> Result<Self> {
+        let bytes: &[u8] = bytemuck::cast_slice(data);
+        let mut buffer = Self::new(ctx, name, bytes.len() as u64, BufferKind::Device)?;
+        buffer.write(0, data)?;
+        Ok(buffer)
+    }
+
+    pub fn size(&self) -> u64 {
+        self.size
+    }
+
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// The mapped bytes when the memory is host-visible and coherent (lavapipe: always).
+    fn mapped(&mut self) -> Option<&mut [u8]> {
+        let allocation = self.allocation.as_mut()?;
+        let coherent = allocation
+            .memory_properties()
+            .contains(vk::MemoryPropertyFlags::HOST_COHERENT);
+        allocation.mapped_slice_mut().filter(|_| coherent)
+    }
+
+    /// Writes `data` at byte `offset`, directly when mapped, else through a staging copy.
+    /// Blocks until the data is in place; the device must not be using the buffer.
+    pub fn write<T: bytemuck::Pod>(&mut self, offset: u64, data: &[T]) -> Result<()> {
+        let bytes: &[u8] = bytemuck::cast_slice(data);
+        let end = offset + bytes.len() as u64;
+        if end > self.size {
+            return Err(Error::InvalidInput(format!(
+                "write of {} bytes at {offset} overruns buffer '{}' of {} bytes",
+                bytes.len(),
+                self.name,
+                self.size
+            )));
+        }
+        if bytes.is_empty() {
+            return Ok(());
+        }
+        if let Some(mapped) = self.mapped() {
+            mapped[offset as usize..end as usize].copy_from_slice(bytes);
+            return Ok(());
+        }
+        let mut staging = Buffer::new(
+            &self.ctx,
+            "staging upload",
+            bytes.len() as u64,
+            BufferKind::Upload,
+        )?;
+        staging.write(0, bytes)?;
+        let mut rec = Recorder::new(&self.ctx)?;
+        rec.copy_buffer(&staging, 0, self, offset, bytes.len() as u64);
+        self.ctx.submit_and_wait(rec)
+    }
+
+    /// Reads the whole buffer back as `T`s (the device must be done writing it).
+    pub fn read<T: bytemuck::Pod>(&mut self) -> Result<Vec<T>> {
+        let count = self.size as usize / std::mem::size_of::<T>();
+        self.read_range(0, count)
+    }
+
+    /// Reads `count` values of `T` from byte `offset`.
+    pub fn read_range<T: bytemuck::Pod>(&mut self, offset: u64, count: usize) -> Result<Vec<T>> {
+        let len = (count * std::mem::size_of::<T>()) as u64;
+        if offset + len > self.size {
+            return Err(Error::InvalidInput(format!(
+                "read of {len} bytes at {offset} overruns buffer '{}' of {} bytes",
+                self.name, self.size
+            )));
+        }
+        let mut out = vec![T::zeroed(); count];
+        if len == 0 {
+            return Ok(out);
+        }
+        if let Some(mapped) = self.mapped() {
+            bytemuck::cast_slice_mut(&mut out)
+                .copy_from_slice(&mapped[offset as usize..(offset + len) as usize]);
+            return Ok(out);
+        }
+        let mut staging = Buffer::new(&self.ctx, "staging readback", len, BufferKind::Readback)?;
+        let mut rec = Recorder::new(&self.ctx)?;
+        rec.copy_buffer(self, offset, &staging, 0, len);
+        self.ctx.submit_and_wait(rec)?;
+        let mapped = staging.mapped().ok_or_else(|| Error::Allocation {
+            name: "staging readback".into(),
+            reason: "readback memory is not host-visible and coherent".into(),
+        })?;
+        bytemuck::cast_slice_mut(&mut out).copy_from_slice(&mapped[..len as usize]);
+        Ok(out)
+    }
+}
+
+impl Drop for Buffer {
+    fn drop(&mut self) {
+        // SAFETY: per the lifetime model no submitted work uses the buffer any more.
+        unsafe { self.ctx.device().destroy_buffer(self.raw, None) };
+        if let Some(allocation) = self.allocation.take() {
+            let _ = self.ctx.with_allocator(|a| a.free(allocation));
+        }
+    }
+}

@@ -1,0 +1,425 @@
+//! Command recording: a [`Recorder`] wraps one primary command buffer; capabilities record
+//! into a recorder they are handed and never submit on their own. A finished
+//! [`Recording`] can be replayed any number of times.
+
+use ash::vk;
+
+use super::pipeline::PipelineCommon;
+use super::{
+    vk_err, Binding, Buffer, ComputePipeline, Context, GraphicsPipeline, Image, ImageState,
+    Timestamps,
+};
+use crate::error::{Error, Result};
+
+/// Attachments of one dynamic-rendering pass: one layer of each image, cleared first.
+pub struct RenderTarget<'a> {
+    /// Colour attachments with their clear colour (all-zero bits clear integer formats to 0).
+    pub colors: &'a [(&'a Image, u32, [f32; 4])],
+    /// Depth attachment and its clear depth (reverse-Z: clear to 0).
+    pub depth: Option<(&'a Image, u32, f32)>,
+}
+
+/// A command buffer being recorded.
+pub struct Recorder {
+    ctx: Context,
+    pub(crate) raw: vk::CommandBuffer,
+}
+
+/// A finished command buffer; [`Context::replay`] runs it again and again.
+pub struct Recording {
+    ctx: Context,
+    raw: vk::CommandBuffer,
+}
+
+impl Drop for Recording {
+    fn drop(&mut self) {
+        self.ctx.free_command_buffer(self.raw);
+    }
+}
+
+impl Context {
+    /// Ends the recording, submits it and waits (bounded) until the device is done.
+    pub fn submit_and_wait(&self, recorder: Recorder) -> Result<()> {
+        let recording = recorder.finish()?;
+        self.replay(&recording)
+    }
+
+    /// Submits a finished recording again and waits (bounded) until it completes.
+    pub fn replay(&self, recording: &Recording) -> Result<()> {
+        self.submit_command_buffer(recording.raw)
+    }
+}
+
+impl Recorder {
+    pub fn new(ctx: &Context) -> Result<Self> {
+        let raw = ctx.allocate_command_buffer()?;
+        let begin = vk::CommandBufferBeginInfo::default();
+        // SAFETY: freshly allocated command buffer.
+        if let Err(e) = unsafe { ctx.device().begin_command_buffer(raw, &begin) } {
+            ctx.free_command_buffer(raw);
+            return Err(vk_err("vkBeginCommandBuffer")(e));
+        }
+        Ok(Self {
+            ctx: ctx.clone(),
+            raw,
+        })
+    }
+
+    /// Ends recording; the result can be submitted any number of times.
+    pub fn finish(mut self) -> Result<Recording> {
+        let raw = std::mem::replace(&mut self.raw, vk::CommandBuffer::null());
+        let recording = Recording {
+            ctx: self.ctx.clone(),
+            raw,
+        };
+        // SAFETY: the command buffer is in the recording state.
+        unsafe { self.ctx.device().end_command_buffer(raw) }
+            .map_err(vk_err("vkEndCommandBuffer"))?;
+        Ok(recording)
+    }
+
+    fn device(&self) -> &ash::Device {
+        self.ctx.device()
+    }
+
+    /// Makes all earlier writes (any stage) visible to all later commands.
+    pub fn memory_barrier(&mut self) {
+        let barrier = [vk::MemoryBarrier2::default()
+            .src_stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)
+            .src_access_mask(vk::AccessFlags2::MEMORY_WRITE)
+            .dst_stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)
+            .dst_access_mask(vk::AccessFlags2::MEMORY_READ | vk::AccessFlags2::MEMORY_WRITE)];
+        let dependency = vk::DependencyInfo::default().memory_barriers(&barrier);
+        // SAFETY: recording state.
+        unsafe { self.device().cmd_pipeline_barrier2(self.raw, &dependency) };
+    }
+
+    /// Moves images (all layers) from one state to another, waiting for prior use, in
+    /// one batched barrier.
+    pub fn transition(&mut self, images: &[&Image], from: ImageState, to: ImageState) {
+        let barriers: Vec<_> = images
+            .iter()
+            .map(|image| {
+                let format = image.format();
+                let (src_stage, src_access) = from.stage_access(format);
+                let (dst_stage, dst_access) = to.stage_access(format);
+                vk::ImageMemoryBarrier2::default()
+                    .src_stage_mask(src_stage)
+                    .src_access_mask(src_access)
+                    .dst_stage_mask(dst_stage)
+                    .dst_access_mask(dst_access)
+                    .old_layout(from.layout(format))
+                    .new_layout(to.layout(format))
+                    .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                    .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                    .image(image.raw)
+                    .subresource_range(
+                        vk::ImageSubresourceRange::default()
+                            .aspect_mask(format.aspect())
+                            .level_count(1)
+                            .layer_count(image.layers()),
+                    )
+            })
+            .collect();
+        let dependency = vk::DependencyInfo::default().image_memory_barriers(&barriers);
+        // SAFETY: recording state; images are alive until the submission completes.
+        unsafe { self.device().cmd_pipeline_barrier2(self.raw, &dependency) };
+    }
+
+    /// Begins a dynamic-rendering pass over the full extent of the first attachment,
+    /// with viewport and scissor set to it. Images must be in [`ImageState::Attachment`].
+    pub fn begin_rendering(&mut self, target: &RenderTarget) -> Result<()> {
+        let first = target
+            .colors
+            .first()
+            .map(|c| c.0)
+            .or(target.depth.map(|d| d.0))
+            .ok_or_else(|| Error::InvalidInput("a render pass needs an attachment".into()))?;
+        let (width, height) = (first.width(), first.height());
+        let colors: Vec<_> = target
+            .colors
+            .iter()
+            .map(|&(image, layer, clear)| {
+                vk::RenderingAttachmentInfo::default()
+                    .image_view(image.layer_views[layer as usize])
+                    .image_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
+                    .load_op(vk::AttachmentLoadOp::CLEAR)
+                    .store_op(vk::AttachmentStoreOp::STORE)
+                    .clear_value(vk::ClearValue {
+                        color: vk::ClearColorValue { float32: clear },
+                    })
+            })
+            .collect();
+        let depth = target.depth.map(|(image, layer, clear)| {
+            vk::RenderingAttachmentInfo::default()
+                .image_view(image.layer_views[layer as usize])
+                .image_layout(vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL)
+                .load_op(vk::AttachmentLoadOp::CLEAR)
+                .store_op(vk::AttachmentStoreOp::STORE)
+                .clear_value(vk::ClearValue {
+                    depth_stencil: vk::ClearDepthStencilValue {
+                        depth: clear,
+                        stencil: 0,
+                    },
+                })
+        });
+        let area = vk::Rect2D::default().extent(vk::Extent2D { width, height });
+        let mut info = vk::RenderingInfo::default()
+            .render_area(area)
+            .layer_count(1)
+            .color_attachments(&colors);
+        if let Some(depth) = depth.as_ref() {
+            info = info.depth_attachment(depth);
+        }
+        let viewport = vk::Viewport::default()
+            .width(width as f32)
+            .height(height as f32)
+            .min_depth(0.0)
+            .max_depth(1.0);
+        // SAFETY: recording state; views belong to live images.
+        unsafe {
+            self.device().cmd_begin_rendering(self.raw, &info);
+            self.device().cmd_set_viewport(self.raw, 0, &[viewport]);
+            self.device().cmd_set_scissor(self.raw, 0, &[area]);
+        }
+        Ok(())
+    }
+
+    pub fn end_rendering(&mut self) {
+        // SAFETY: inside a rendering pass begun by `begin_rendering`.
+        unsafe { self.device().cmd_end_rendering(self.raw) };
+    }
+
+    pub fn bind_graphics(&mut self, pipeline: &GraphicsPipeline) {
+        // SAFETY: recording state; the pipeline outlives the submission.
+        unsafe {
+            self.device().cmd_bind_pipeline(
+                self.raw,
+                vk::PipelineBindPoint::GRAPHICS,
+                pipeline.common.pipeline,
+            )
+        };
+    }
+
+    pub fn bind_compute(&mut self, pipeline: &ComputePipeline) {
+        // SAFETY: as above.
+        unsafe {
+            self.device().cmd_bind_pipeline(
+                self.raw,
+                vk::PipelineBindPoint::COMPUTE,
+                pipeline.common.pipeline,
+            )
+        };
+    }
+
+    /// Pushes the graphics pipeline's bindings (in binding order).
+    pub fn push_graphics_bindings(&mut self, pipeline: &GraphicsPipeline, bindings: &[Binding]) {
+        self.push_bindings(&pipeline.common, vk::PipelineBindPoint::GRAPHICS, bindings);
+    }
+
+    /// Pushes the compute pipeline's bindings (in binding order).
+    pub fn push_compute_bindings(&mut self, pipeline: &ComputePipeline, bindings: &[Binding]) {
+        self.push_bindings(&pipeline.common, vk::PipelineBindPoint::COMPUTE, bindings);
+    }
+
+    fn push_bindings(
+        &mut self,
+        pipeline: &PipelineCommon,
+        bind_point: vk::PipelineBindPoint,
+        bindings: &[Binding],
+    ) {
+        assert_eq!(
+            bindings.len(),
+            pipeline.bindings.len(),
+            "binding count must match the pipeline's layout"
+        );
+        let buffer_infos: Vec<[vk::DescriptorBufferInfo; 1]> = bindings
+            .iter()
+            .map(|b| match b {
+                Binding::Buffer {
+                    buffer,
+                    offset,
+                    range,
+                } => [vk::DescriptorBufferInfo::default()
+                    .buffer(buffer.raw)
+                    .offset(*offset)
+                    .range(*range)],
+                Binding::Image(_) => [vk::DescriptorBufferInfo::default()],
+            })
+            .collect();
+        let image_infos: Vec<[vk::DescriptorImageInfo; 1]> = bindings
+            .iter()
+            .map(|b| match b {
+                Binding::Image(image) => [vk::DescriptorImageInfo::default()
+                    .image_view(image.array_view)
+                    .image_layout(vk::ImageLayout::GENERAL)],
+                Binding::Buffer { .. } => [vk::DescriptorImageInfo::default()],
+            })
+            .collect();
+        let writes: Vec<_> = bindings
+            .iter()
+            .enumerate()
+            .map(|(i, b)| {
+                let write = vk::WriteDescriptorSet::default().dst_binding(i as u32);
+                match b {
+                    Binding::Buffer { .. } => write
+                        .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                        .buffer_info(&buffer_infos[i]),
+                    Binding::Image(_) => write
+                        .descriptor_type(vk::DescriptorType::STORAGE_IMAGE)
+                        .image_info(&image_infos[i]),
+                }
+            })
+            .collect();
+        // SAFETY: recording state; layout matches the pipeline; resources outlive the
+        // submission per the lifetime model.
+        unsafe {
+            self.ctx.shared.push_descriptor.cmd_push_descriptor_set(
+                self.raw,
+                bind_point,
+                pipeline.layout,
+                0,
+                &writes,
+            )
+        };
+    }
+
+    /// Sets the graphics pipeline's push constants.
+    pub fn graphics_constants<T: bytemuck::Pod>(&mut self, pipeline: &GraphicsPipeline, value: &T) {
+        self.push_constants(&pipeline.common, bytemuck::bytes_of(value));
+    }
+
+    /// Sets the compute pipeline's push constants.
+    pub fn compute_constants<T: bytemuck::Pod>(&mut self, pipeline: &ComputePipeline, value: &T) {
+        self.push_constants(&pipeline.common, bytemuck::bytes_of(value));
+    }
+
+    fn push_constants(&mut self, pipeline: &PipelineCommon, bytes: &[u8]) {
+        assert_eq!(
+            bytes.len() as u32,
+            pipeline.push_constant_bytes,
+            "push constants must match the pipeline's declared size"
+        );
+        // SAFETY: recording state; size matches the layout's range.
+        unsafe {
+            self.device()
+                .cmd_push_constants(self.raw, pipeline.layout, pipeline.stages, 0, bytes)
+        };
+    }
+
+    /// Non-indexed draw of `vertex_count` vertices (vertex pulling).
+    pub fn draw(&mut self, vertex_count: u32) {
+        // SAFETY: inside a rendering pass with a bound graphics pipeline.
+        unsafe { self.device().cmd_draw(self.raw, vertex_count, 1, 0, 0) };
+    }
+
+    /// Indexed draw with 32-bit indices from `indices`.
+    pub fn draw_indexed(&mut self, indices: &Buffer, index_count: u32) {
+        // SAFETY: as above; the index buffer was created with index usage.
+        unsafe {
+            self.device()
+                .cmd_bind_index_buffer(self.raw, indices.raw, 0, vk::IndexType::UINT32);
+            self.device()
+                .cmd_draw_indexed(self.raw, index_count, 1, 0, 0, 0);
+        }
+    }
+
+    pub fn dispatch(&mut self, x: u32, y: u32, z: u32) {
+        // SAFETY: a compute pipeline is bound.
+        unsafe { self.device().cmd_dispatch(self.raw, x, y, z) };
+    }
+
+    pub fn copy_buffer(
+        &mut self,
+        src: &Buffer,
+        src_offset: u64,
+        dst: &Buffer,
+        dst_offset: u64,
+        size: u64,
+    ) {
+        let region = [vk::BufferCopy::default()
+            .src_offset(src_offset)
+            .dst_offset(dst_offset)
+            .size(size)];
+        // SAFETY: recording state; ranges checked by callers.
+        unsafe {
+            self.device()
+                .cmd_copy_buffer(self.raw, src.raw, dst.raw, &region)
+        };
+    }
+
+    /// Fills a whole buffer with a repeated 32-bit word.
+    pub fn fill_buffer(&mut self, buffer: &Buffer, word: u32) {
+        // SAFETY: recording state; size is a multiple of 4 (see `Buffer::new`).
+        unsafe {
+            self.device()
+                .cmd_fill_buffer(self.raw, buffer.raw, 0, vk::WHOLE_SIZE, word)
+        };
+    }
+
+    /// Copies all layers of `image` (in [`ImageState::TransferSrc`]) into `buffer`,
+    /// packed tightly as (layer, row, column).
+    pub fn copy_image_to_buffer(&mut self, image: &Image, buffer: &Buffer) -> Result<()> {
+        if buffer.size() < image.byte_size() {
+            return Err(Error::InvalidInput(format!(
+                "buffer '{}' of {} bytes cannot hold an image of {} bytes",
+                buffer.name(),
+                buffer.size(),
+                image.byte_size()
+            )));
+        }
+        let region = [vk::BufferImageCopy::default()
+            .image_subresource(
+                vk::ImageSubresourceLayers::default()
+                    .aspect_mask(image.format().aspect())
+                    .layer_count(image.layers()),
+            )
+            .image_extent(vk::Extent3D {
+                width: image.width(),
+                height: image.height(),
+                depth: 1,
+            })];
+        // SAFETY: recording state; sizes checked above.
+        unsafe {
+            self.device().cmd_copy_image_to_buffer(
+                self.raw,
+                image.raw,
+                vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
+                buffer.raw,
+                &region,
+            )
+        };
+        Ok(())
+    }
+
+    /// Resets all slots of `timestamps` (before writing them in this recording).
+    pub fn reset_timestamps(&mut self, timestamps: &Timestamps) {
+        // SAFETY: recording state, outside a render pass.
+        unsafe {
+            self.device()
+                .cmd_reset_query_pool(self.raw, timestamps.pool, 0, timestamps.count())
+        };
+    }
+
+    /// Writes slot `index` once all earlier commands have finished.
+    pub fn timestamp(&mut self, timestamps: &Timestamps, index: u32) {
+        // SAFETY: recording state; index < count is checked by the validation layer.
+        unsafe {
+            self.device().cmd_write_timestamp2(
+                self.raw,
+                vk::PipelineStageFlags2::ALL_COMMANDS,
+                timestamps.pool,
+                index,
+            )
+        };
+    }
+}
+
+impl Drop for Recorder {
+    fn drop(&mut self) {
+        // A recorder dropped without `finish` was never submitted.
+        if self.raw != vk::CommandBuffer::null() {
+            self.ctx.free_command_buffer(self.raw);
+        }
+    }
+}

@@ -1,0 +1,51 @@
+//! The GPU layer: the only code in vkdr that calls `ash`. It owns the Vulkan context
+//! (instance, device, queue, allocator), buffers, images, pipelines, command recording
+//! with barriers, and GPU timestamps. Everything above speaks in these types.
+//!
+//! # Lifetime model
+//!
+//! * A [`Context`] is a cheap handle to one shared device (`Arc`). Every resource
+//!   ([`Buffer`], [`Image`], pipelines, [`Timestamps`]) holds such a handle and frees
+//!   its Vulkan objects and memory in `Drop`; the device itself is destroyed when the
+//!   last handle goes, after `vkDeviceWaitIdle`, in reverse order of creation.
+//! * Commands are recorded into a [`Recorder`] that borrows nothing: the caller keeps
+//!   every resource it records alive until the submission has completed.
+//!   [`Context::submit_and_wait`] and [`Context::replay`] block (with a bounded wait)
+//!   until the device is done, so resources may be dropped as soon as they return.
+//! * Nothing is destroyed while the device may still use it: the only way to run work is
+//!   through those blocking calls, and `Drop` of the context waits for idle.
+//!
+//! Descriptors are push descriptors (`VK_KHR_push_descriptor`): a pipeline declares its
+//! bindings for set 0 and a recording pushes the resources, so no pools or sets exist.
+
+mod buffer;
+mod command;
+mod context;
+mod image;
+mod pipeline;
+mod timestamps;
+
+pub use buffer::{Buffer, BufferKind};
+pub use command::{Recorder, Recording, RenderTarget};
+pub use context::{Context, ContextOptions, DeviceInfo};
+pub use image::{Format, Image, ImageState};
+pub use pipeline::{Binding, BindingKind, ComputePipeline, GraphicsPipeline, GraphicsPipelineDesc};
+pub use timestamps::Timestamps;
+
+use ash::vk;
+
+use crate::error::Error;
+
+/// Wraps a Vulkan error code with the call that returned it.
+pub(crate) fn vk_err(call: &'static str) -> impl FnOnce(vk::Result) -> Error {
+    move |result| Error::Vulkan {
+        call,
+        result: format!("{result:?}"),
+    }
+}
+
+/// Reads a SPIR-V blob (as embedded with `include_bytes!`) into properly aligned words.
+pub fn spirv(bytes: &[u8]) -> crate::Result<Vec<u32>> {
+    ash::util::read_spv(&mut std::io::Cursor::new(bytes))
+        .map_err(|e| Error::InvalidInput(format!("bad SPIR-V: {e}")))
+}

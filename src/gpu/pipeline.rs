@@ -1,0 +1,266 @@
+//! Compute and graphics pipelines from SPIR-V, with push-descriptor set layouts and a
+//! push-constant range.
+
+use ash::vk;
+
+use super::{vk_err, Buffer, Context, Format, Image};
+use crate::error::Result;
+
+/// The kind of resource a pipeline binding (set 0, binding = position) takes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BindingKind {
+    StorageBuffer,
+    StorageImage,
+}
+
+/// A resource pushed to a binding at record time.
+pub enum Binding<'a> {
+    /// A byte range of a buffer (offset aligned to the device's
+    /// `minStorageBufferOffsetAlignment`).
+    Buffer {
+        buffer: &'a Buffer,
+        offset: u64,
+        range: u64,
+    },
+    /// All layers of an image, in the storage state.
+    Image(&'a Image),
+}
+
+impl<'a> Binding<'a> {
+    /// The whole buffer.
+    pub fn buffer(buffer: &'a Buffer) -> Self {
+        Binding::Buffer {
+            buffer,
+            offset: 0,
+            range: buffer.size(),
+        }
+    }
+}
+
+/// Layout objects shared by both pipeline kinds.
+pub(crate) struct PipelineCommon {
+    ctx: Context,
+    pub(crate) pipeline: vk::Pipeline,
+    pub(crate) layout: vk::PipelineLayout,
+    set_layout: vk::DescriptorSetLayout,
+    pub(crate) bindings: Vec<BindingKind>,
+    pub(crate) push_constant_bytes: u32,
+    pub(crate) stages: vk::ShaderStageFlags,
+}
+
+impl PipelineCommon {
+    fn layouts(
+        ctx: &Context,
+        bindings: &[BindingKind],
+        push_constant_bytes: u32,
+        stages: vk::ShaderStageFlags,
+    ) -> Result<(vk::DescriptorSetLayout, vk::PipelineLayout)> {
+        let device = ctx.device();
+        let raw_bindings: Vec<_> = bindings
+            .iter()
+            .enumerate()
+            .map(|(i, kind)| {
+                vk::DescriptorSetLayoutBinding::default()
+                    .binding(i as u32)
+                    .descriptor_type(match kind {
+                        BindingKind::StorageBuffer => vk::DescriptorType::STORAGE_BUFFER,
+                        BindingKind::StorageImage => vk::DescriptorType::STORAGE_IMAGE,
+                    })
+                    .descriptor_count(1)
+                    .stage_flags(stages)
+            })
+            .collect();
+        let set_info = vk::DescriptorSetLayoutCreateInfo::default()
+            .flags(vk::DescriptorSetLayoutCreateFlags::PUSH_DESCRIPTOR_KHR)
+            .bindings(&raw_bindings);
+        // SAFETY: valid device and create info.
+        let set_layout = unsafe { device.create_descriptor_set_layout(&set_info, None) }
+            .map_err(vk_err("vkCreateDescriptorSetLayout"))?;
+        let ranges = [vk::PushConstantRange::default()
+            .stage_flags(stages)
+            .offset(0)
+            .size(push_constant_bytes)];
+        let set_layouts = [set_layout];
+        let mut info = vk::PipelineLayoutCreateInfo::default().set_layouts(&set_layouts);
+        if push_constant_bytes > 0 {
+            info = info.push_constant_ranges(&ranges);
+        }
+        // SAFETY: as above.
+        let layout = unsafe { device.create_pipeline_layout(&info, None) }
+            .map_err(vk_err("vkCreatePipelineLayout"))?;
+        Ok((set_layout, layout))
+    }
+}
+
+impl Drop for PipelineCommon {
+    fn drop(&mut self) {
+        let device = self.ctx.device();
+        // SAFETY: per the lifetime model no submitted work uses the pipeline any more.
+        unsafe {
+            device.destroy_pipeline(self.pipeline, None);
+            device.destroy_pipeline_layout(self.layout, None);
+            device.destroy_descriptor_set_layout(self.set_layout, None);
+        }
+    }
+}
+
+fn shader_module(ctx: &Context, spirv: &[u32]) -> Result<vk::ShaderModule> {
+    let info = vk::ShaderModuleCreateInfo::default().code(spirv);
+    // SAFETY: SPIR-V produced by build.rs through shaderc.
+    unsafe { ctx.device().create_shader_module(&info, None) }
+        .map_err(vk_err("vkCreateShaderModule"))
+}
+
+/// A compute pipeline.
+pub struct ComputePipeline {
+    pub(crate) common: PipelineCommon,
+}
+
+impl ComputePipeline {
+    pub fn new(
+        ctx: &Context,
+        name: &str,
+        spirv: &[u32],
+        bindings: &[BindingKind],
+        push_constant_bytes: u32,
+    ) -> Result<Self> {
+        let stages = vk::ShaderStageFlags::COMPUTE;
+        let (set_layout, layout) =
+            PipelineCommon::layouts(ctx, bindings, push_constant_bytes, stages)?;
+        let module = shader_module(ctx, spirv)?;
+        let stage = vk::PipelineShaderStageCreateInfo::default()
+            .stage(stages)
+            .module(module)
+            .name(c"main");
+        let info = vk::ComputePipelineCreateInfo::default()
+            .stage(stage)
+            .layout(layout);
+        // SAFETY: module and layout are valid; the module is destroyed after creation.
+        let created = unsafe {
+            let created =
+                ctx.device()
+                    .create_compute_pipelines(vk::PipelineCache::null(), &[info], None);
+            ctx.device().destroy_shader_module(module, None);
+            created
+        };
+        let pipeline = created.map_err(|(_, e)| vk_err("vkCreateComputePipelines")(e))?[0];
+        ctx.name_object(pipeline, name);
+        Ok(Self {
+            common: PipelineCommon {
+                ctx: ctx.clone(),
+                pipeline,
+                layout,
+                set_layout,
+                bindings: bindings.to_vec(),
+                push_constant_bytes,
+                stages,
+            },
+        })
+    }
+}
+
+/// What a graphics pipeline draws: triangle lists with no vertex input (vertices are
+/// pulled from storage buffers), no culling, dynamic viewport and scissor, and, with a
+/// depth attachment, a reverse-Z depth test (greater wins, cleared to 0).
+pub struct GraphicsPipelineDesc<'a> {
+    pub name: &'a str,
+    pub vertex: &'a [u32],
+    pub fragment: &'a [u32],
+    pub bindings: &'a [BindingKind],
+    pub push_constant_bytes: u32,
+    pub color_formats: &'a [Format],
+    pub depth_format: Option<Format>,
+}
+
+/// A graphics pipeline for dynamic rendering.
+pub struct GraphicsPipeline {
+    pub(crate) common: PipelineCommon,
+}
+
+impl GraphicsPipeline {
+    pub fn new(ctx: &Context, desc: &GraphicsPipelineDesc) -> Result<Self> {
+        let stages = vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::FRAGMENT;
+        let (set_layout, layout) =
+            PipelineCommon::layouts(ctx, desc.bindings, desc.push_constant_bytes, stages)?;
+        let vertex = shader_module(ctx, desc.vertex)?;
+        let fragment = shader_module(ctx, desc.fragment)?;
+        let shader_stages = [
+            vk::PipelineShaderStageCreateInfo::default()
+                .stage(vk::ShaderStageFlags::VERTEX)
+                .module(vertex)
+                .name(c"main"),
+            vk::PipelineShaderStageCreateInfo::default()
+                .stage(vk::ShaderStageFlags::FRAGMENT)
+                .module(fragment)
+                .name(c"main"),
+        ];
+        let vertex_input = vk::PipelineVertexInputStateCreateInfo::default();
+        let assembly = vk::PipelineInputAssemblyStateCreateInfo::default()
+            .topology(vk::PrimitiveTopology::TRIANGLE_LIST);
+        let viewport = vk::PipelineViewportStateCreateInfo::default()
+            .viewport_count(1)
+            .scissor_count(1);
+        let raster = vk::PipelineRasterizationStateCreateInfo::default()
+            .polygon_mode(vk::PolygonMode::FILL)
+            .cull_mode(vk::CullModeFlags::NONE)
+            .front_face(vk::FrontFace::COUNTER_CLOCKWISE)
+            .line_width(1.0);
+        let multisample = vk::PipelineMultisampleStateCreateInfo::default()
+            .rasterization_samples(vk::SampleCountFlags::TYPE_1);
+        let has_depth = desc.depth_format.is_some();
+        let depth = vk::PipelineDepthStencilStateCreateInfo::default()
+            .depth_test_enable(has_depth)
+            .depth_write_enable(has_depth)
+            .depth_compare_op(vk::CompareOp::GREATER);
+        let blend_attachments: Vec<_> = desc
+            .color_formats
+            .iter()
+            .map(|_| {
+                vk::PipelineColorBlendAttachmentState::default()
+                    .color_write_mask(vk::ColorComponentFlags::RGBA)
+            })
+            .collect();
+        let blend =
+            vk::PipelineColorBlendStateCreateInfo::default().attachments(&blend_attachments);
+        let dynamic_states = [vk::DynamicState::VIEWPORT, vk::DynamicState::SCISSOR];
+        let dynamic = vk::PipelineDynamicStateCreateInfo::default().dynamic_states(&dynamic_states);
+        let color_formats: Vec<vk::Format> = desc.color_formats.iter().map(|f| f.raw()).collect();
+        let mut rendering = vk::PipelineRenderingCreateInfo::default()
+            .color_attachment_formats(&color_formats)
+            .depth_attachment_format(desc.depth_format.map_or(vk::Format::UNDEFINED, |f| f.raw()));
+        let info = vk::GraphicsPipelineCreateInfo::default()
+            .stages(&shader_stages)
+            .vertex_input_state(&vertex_input)
+            .input_assembly_state(&assembly)
+            .viewport_state(&viewport)
+            .rasterization_state(&raster)
+            .multisample_state(&multisample)
+            .depth_stencil_state(&depth)
+            .color_blend_state(&blend)
+            .dynamic_state(&dynamic)
+            .layout(layout)
+            .push_next(&mut rendering);
+        // SAFETY: every pointer in `info` outlives the call; modules destroyed after.
+        let created = unsafe {
+            let created =
+                ctx.device()
+                    .create_graphics_pipelines(vk::PipelineCache::null(), &[info], None);
+            ctx.device().destroy_shader_module(vertex, None);
+            ctx.device().destroy_shader_module(fragment, None);
+            created
+        };
+        let pipeline = created.map_err(|(_, e)| vk_err("vkCreateGraphicsPipelines")(e))?[0];
+        ctx.name_object(pipeline, desc.name);
+        Ok(Self {
+            common: PipelineCommon {
+                ctx: ctx.clone(),
+                pipeline,
+                layout,
+                set_layout,
+                bindings: desc.bindings.to_vec(),
+                push_constant_bytes: desc.push_constant_bytes,
+                stages,
+            },
+        })
+    }
+}

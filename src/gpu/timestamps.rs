@@ -1,0 +1,57 @@
+//! GPU timestamps: a query pool whose ticks are converted to milliseconds.
+
+use ash::vk;
+
+use super::{vk_err, Context};
+use crate::error::Result;
+
+/// `count` timestamp slots, written by [`super::Recorder::timestamp`].
+pub struct Timestamps {
+    ctx: Context,
+    pub(crate) pool: vk::QueryPool,
+    count: u32,
+}
+
+impl Timestamps {
+    pub fn new(ctx: &Context, count: u32) -> Result<Self> {
+        let info = vk::QueryPoolCreateInfo::default()
+            .query_type(vk::QueryType::TIMESTAMP)
+            .query_count(count);
+        // SAFETY: valid device and create info.
+        let pool = unsafe { ctx.device().create_query_pool(&info, None) }
+            .map_err(vk_err("vkCreateQueryPool"))?;
+        Ok(Self {
+            ctx: ctx.clone(),
+            pool,
+            count,
+        })
+    }
+
+    pub fn count(&self) -> u32 {
+        self.count
+    }
+
+    /// All slots in milliseconds since an arbitrary origin (after the work completed).
+    pub fn read_ms(&self) -> Result<Vec<f64>> {
+        let mut ticks = vec![0u64; self.count as usize];
+        // SAFETY: the submission that wrote the queries has completed (blocking submits).
+        unsafe {
+            self.ctx.device().get_query_pool_results(
+                self.pool,
+                0,
+                &mut ticks,
+                vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
+            )
+        }
+        .map_err(vk_err("vkGetQueryPoolResults"))?;
+        let period_ms = self.ctx.info().timestamp_period_ns as f64 * 1e-6;
+        Ok(ticks.iter().map(|&t| t as f64 * period_ms).collect())
+    }
+}
+
+impl Drop for Timestamps {
+    fn drop(&mut self) {
+        // SAFETY: no submitted work uses the pool any more.
+        unsafe { self.ctx.device().destroy_query_pool(self.pool, None) };
+    }
+}

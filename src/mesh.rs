@@ -1,0 +1,279 @@
+//! Triangle meshes on the host: validated construction, OBJ in and out, generators.
+//!
+//! Vertices keep the order of the OBJ file's `v` lines and triangles the order of its
+//! `f` lines, so triangle ids and per-vertex outputs line up with the file. Polygons with
+//! more than three corners are split into a fan (corner 0, k, k + 1).
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use crate::error::{Error, Result};
+
+/// A welded triangle mesh: shared vertices, one index per corner, counter-clockwise
+/// outward faces.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Mesh {
+    positions: Vec<[f32; 3]>,
+    triangles: Vec<[u32; 3]>,
+}
+
+impl Mesh {
+    /// Checks and builds a mesh: at least one triangle, finite coordinates, indices in
+    /// range.
+    pub fn new(positions: Vec<[f32; 3]>, triangles: Vec<[u32; 3]>) -> Result<Self> {
+        if triangles.is_empty() {
+            return Err(Error::InvalidInput("mesh has no triangles".into()));
+        }
+        if let Some(i) = positions
+            .iter()
+            .position(|p| p.iter().any(|c| !c.is_finite()))
+        {
+            return Err(Error::InvalidInput(format!(
+                "vertex {i} has a non-finite coordinate {:?}",
+                positions[i]
+            )));
+        }
+        let n = positions.len();
+        if let Some((t, tri)) = triangles
+            .iter()
+            .enumerate()
+            .find(|(_, tri)| tri.iter().any(|&v| v as usize >= n))
+        {
+            return Err(Error::InvalidInput(format!(
+                "triangle {t} {tri:?} refers to a vertex out of range (mesh has {n} vertices)"
+            )));
+        }
+        Ok(Self {
+            positions,
+            triangles,
+        })
+    }
+
+    pub fn positions(&self) -> &[[f32; 3]] {
+        &self.positions
+    }
+
+    pub fn triangles(&self) -> &[[u32; 3]] {
+        &self.triangles
+    }
+
+    pub fn vertex_count(&self) -> usize {
+        self.positions.len()
+    }
+
+    pub fn triangle_count(&self) -> usize {
+        self.triangles.len()
+    }
+
+    /// Axis-aligned bounds (min, max).
+    pub fn bounds(&self) -> ([f32; 3], [f32; 3]) {
+        let mut lo = [f32::INFINITY; 3];
+        let mut hi = [f32::NEG_INFINITY; 3];
+        for p in &self.positions {
+            for k in 0..3 {
+                lo[k] = lo[k].min(p[k]);
+                hi[k] = hi[k].max(p[k]);
+            }
+        }
+        (lo, hi)
+    }
+
+    /// Reads a Wavefront OBJ file (positions and faces; other statements are ignored).
+    pub fn load_obj(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref();
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        Self::parse_obj(&text).map_err(|e| match e {
+            Error::InvalidInput(message) => Error::format(path, message),
+            other => other,
+        })
+    }
+
+    /// Parses OBJ text. Errors name the line.
+    pub fn parse_obj(text: &str) -> Result<Self> {
+        let mut positions = Vec::new();
+        let mut triangles = Vec::new();
+        for (number, line) in text.lines().enumerate() {
+            let line = line.split('#').next().unwrap_or("");
+            let mut words = line.split_whitespace();
+            let at =
+                |message: String| Error::InvalidInput(format!("line {}: {message}", number + 1));
+            match words.next() {
+                Some("v") => {
+                    let mut p = [0f32; 3];
+                    for c in &mut p {
+                        let word = words
+                            .next()
+                            .ok_or_else(|| at("vertex has fewer than 3 coordinates".into()))?;
+                        *c = word
+                            .parse()
+                            .map_err(|_| at(format!("'{word}' is not a number")))?;
+                        if !c.is_finite() {
+                            return Err(at(format!("non-finite coordinate '{word}'")));
+                        }
+                    }
+                    positions.push(p);
+                }
+                Some("f") => {
+                    let corners = words
+                        .map(|word| {
+                            let index = word.split('/').next().unwrap_or("");
+                            let i: i64 = index
+                                .parse()
+                                .map_err(|_| at(format!("'{word}' is not a vertex reference")))?;
+                            // OBJ indices are 1-based; negative ones count back from the end.
+                            let resolved = if i > 0 {
+                                i - 1
+                            } else {
+                                positions.len() as i64 + i
+                            };
+                            if i == 0 || resolved < 0 || resolved >= positions.len() as i64 {
+                                return Err(at(format!(
+                                    "vertex reference {i} is out of range ({} vertices so far)",
+                                    positions.len()
+                                )));
+                            }
+                            Ok(resolved as u32)
+                        })
+                        .collect::<Result<Vec<u32>>>()?;
+                    if corners.len() < 3 {
+                        return Err(at(format!(
+                            "face has {} corners, needs at least 3",
+                            corners.len()
+                        )));
+                    }
+                    for k in 1..corners.len() - 1 {
+                        triangles.push([corners[0], corners[k], corners[k + 1]]);
+                    }
+                }
+                _ => {}
+            }
+        }
+        Self::new(positions, triangles)
+    }
+
+    /// OBJ text for this mesh (vertices and faces in order).
+    pub fn to_obj(&self) -> String {
+        let mut out = String::with_capacity(self.positions.len() * 40 + self.triangles.len() * 24);
+        out.push_str("# written by vkdr\n");
+        for p in &self.positions {
+            let _ = writeln!(out, "v {} {} {}", p[0], p[1], p[2]);
+        }
+        for t in &self.triangles {
+            let _ = writeln!(out, "f {} {} {}", t[0] + 1, t[1] + 1, t[2] + 1);
+        }
+        out
+    }
+
+    /// Writes the mesh as OBJ, through a temporary file so a failure never leaves a
+    /// truncated file behind.
+    pub fn save_obj(&self, path: impl AsRef<Path>) -> Result<()> {
+        crate::io::write_atomically(path.as_ref(), self.to_obj().as_bytes())
+    }
+
+    /// A UV sphere of `radius` centred at the origin: `rings` latitude bands and
+    /// `segments` longitude segments, welded, outward counter-clockwise faces.
+    pub fn uv_sphere(radius: f32, rings: u32, segments: u32) -> Self {
+        let rings = rings.max(2);
+        let segments = segments.max(3);
+        let mut positions = vec![[0.0, -radius, 0.0]];
+        for r in 1..rings {
+            let theta = std::f32::consts::PI * r as f32 / rings as f32;
+            let (y, ring_radius) = (-radius * theta.cos(), radius * theta.sin());
+            for s in 0..segments {
+                let phi = std::f32::consts::TAU * s as f32 / segments as f32;
+                positions.push([ring_radius * phi.cos(), y, ring_radius * phi.sin()]);
+            }
+        }
+        positions.push([0.0, radius, 0.0]);
+        let top = positions.len() as u32 - 1;
+        let ring = |r: u32, s: u32| 1 + (r - 1) * segments + s % segments;
+        let mut triangles = Vec::new();
+        for s in 0..segments {
+            triangles.push([0, ring(1, s), ring(1, s + 1)]);
+            triangles.push([top, ring(rings - 1, s + 1), ring(rings - 1, s)]);
+        }
+        for r in 1..rings - 1 {
+            for s in 0..segments {
+                let (a, b) = (ring(r, s), ring(r, s + 1));
+                let (c, d) = (ring(r + 1, s), ring(r + 1, s + 1));
+                triangles.push([a, c, d]);
+                triangles.push([a, d, b]);
+            }
+        }
+        Self {
+            positions,
+            triangles,
+        }
+    }
+
+    /// A flat grid of `nx` x `ny` quads (two triangles each) in the z = 0 plane,
+    /// spanning [0, nx * spacing] x [0, ny * spacing]; triangles are ordered row by row.
+    pub fn grid(nx: u32, ny: u32, spacing: f32) -> Self {
+        let mut positions = Vec::with_capacity(((nx + 1) * (ny + 1)) as usize);
+        for j in 0..=ny {
+            for i in 0..=nx {
+                positions.push([i as f32 * spacing, j as f32 * spacing, 0.0]);
+            }
+        }
+        let mut triangles = Vec::with_capacity((2 * nx * ny) as usize);
+        let v = |i: u32, j: u32| j * (nx + 1) + i;
+        for j in 0..ny {
+            for i in 0..nx {
+                triangles.push([v(i, j), v(i + 1, j), v(i + 1, j + 1)]);
+                triangles.push([v(i, j), v(i + 1, j + 1), v(i, j + 1)]);
+            }
+        }
+        Self {
+            positions,
+            triangles,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn obj_round_trip_keeps_order_and_triangulates_polygons() {
+        let text =
+            "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvn 0 0 1\nf 1//1 2//1 3//1 4//1\nf -1 -2 -3\n";
+        let mesh = Mesh::parse_obj(text).unwrap();
+        assert_eq!(mesh.triangles(), &[[0, 1, 2], [0, 2, 3], [3, 2, 1]]);
+        let again = Mesh::parse_obj(&mesh.to_obj()).unwrap();
+        assert_eq!(again, mesh);
+    }
+
+    #[test]
+    fn bad_obj_input_is_a_clear_error() {
+        let cases = [
+            ("v 0 0 0\nf 1 2 3\n", "out of range"),
+            ("v 0 nan 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "non-finite"),
+            ("v 0 inf 0\n", "non-finite"),
+            ("v 0 0 0\nv 1 0 0\nf 1 2\n", "at least 3"),
+            ("# nothing\n", "no triangles"),
+            ("v 0 0\n", "fewer than 3"),
+            (
+                "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n",
+                "not a vertex reference",
+            ),
+        ];
+        for (text, expected) in cases {
+            let message = Mesh::parse_obj(text).unwrap_err().to_string();
+            assert!(message.contains(expected), "{text:?}: {message}");
+        }
+    }
+
+    #[test]
+    fn generators_are_welded_and_in_range() {
+        for mesh in [Mesh::uv_sphere(1.0, 8, 12), Mesh::grid(3, 2, 0.5)] {
+            let checked = Mesh::new(mesh.positions.clone(), mesh.triangles.clone()).unwrap();
+            assert_eq!(checked, mesh);
+        }
+        let sphere = Mesh::uv_sphere(1.0, 8, 12);
+        assert_eq!(sphere.vertex_count(), 2 + 7 * 12);
+        // Closed surface: V - E + F = 2 with E = 3F / 2.
+        let (v, f) = (sphere.vertex_count() as i64, sphere.triangle_count() as i64);
+        assert_eq!(v - 3 * f / 2 + f, 2);
+    }
+}

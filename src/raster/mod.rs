@@ -1,0 +1,521 @@
+//! The forward rasterizer: a Vulkan graphics pipeline that writes the G-buffer (triangle
+//! id + 1, perspective-correct barycentrics, optionally camera-space depth) for several
+//! views of one mesh, plus a plain Lambert-shaded colour render for pictures and as the
+//! benchmark baseline. [`reference`] is the CPU float64 rasterizer the tests compare to.
+
+pub mod reference;
+
+use bytemuck::{Pod, Zeroable};
+use ndarray::{Array3, Array4};
+
+use crate::camera::{Camera, Pose};
+use crate::error::{Error, Result};
+use crate::gpu::{
+    spirv, Binding, BindingKind, Buffer, BufferKind, Context, Format, GraphicsPipeline,
+    GraphicsPipelineDesc, Image, ImageState, Recorder, RenderTarget,
+};
+use crate::mesh::Mesh;
+
+const GBUFFER_VERT: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/gbuffer.vert.spv"));
+const GBUFFER_FRAG: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/gbuffer.frag.spv"));
+const GBUFFER_DEPTH_FRAG: &[u8] =
+    include_bytes!(concat!(env!("OUT_DIR"), "/gbuffer_depth.frag.spv"));
+const SHADED_VERT: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/shaded.vert.spv"));
+const SHADED_FRAG: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/shaded.frag.spv"));
+
+/// One camera looking at the mesh from one pose.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct View {
+    pub camera: Camera,
+    pub pose: Pose,
+}
+
+/// Push constants of the raster shaders (`glsl/include/camera.glsl`).
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct ViewConstants {
+    object_to_camera: [[f32; 4]; 4],
+    intrinsics: [f32; 4],
+    size: [f32; 2],
+    near: f32,
+    first_triangle: u32,
+}
+
+impl ViewConstants {
+    fn new(view: &View, first_triangle: u32) -> Self {
+        let c = &view.camera;
+        Self {
+            object_to_camera: view.pose.matrix_f32(),
+            intrinsics: [c.fx as f32, c.fy as f32, c.cx as f32, c.cy as f32],
+            size: [c.width as f32, c.height as f32],
+            near: c.near as f32,
+            first_triangle,
+        }
+    }
+}
+
+/// A mesh on the device: positions (float x, y, z per vertex, writable by compute passes)
+/// and triangle indices.
+pub struct MeshBuffers {
+    positions: Buffer,
+    triangles: Buffer,
+    vertex_count: u32,
+    triangle_count: u32,
+}
+
+impl MeshBuffers {
+    pub fn new(ctx: &Context, mesh: &Mesh) -> Result<Self> {
+        let limit = ctx.info().max_storage_buffer_range as u64;
+        let position_bytes = mesh.vertex_count() as u64 * 12;
+        if position_bytes > limit {
+            return Err(Error::Limit(format!(
+                "{} vertices need {position_bytes} bytes, over the device's storage buffer \
+                 range of {limit} bytes",
+                mesh.vertex_count()
+            )));
+        }
+        let triangle_count = u32::try_from(mesh.triangle_count())
+            .ok()
+            .filter(|&t| t < u32::MAX / 3)
+            .ok_or_else(|| Error::Limit(format!("{} triangles", mesh.triangle_count())))?;
+        Ok(Self {
+            positions: Buffer::from_slice(ctx, "mesh positions", mesh.positions())?,
+            triangles: Buffer::from_slice(ctx, "mesh triangles", mesh.triangles())?,
+            vertex_count: mesh.vertex_count() as u32,
+            triangle_count,
+        })
+    }
+
+    /// The positions buffer (3 floats per vertex), for passes that deform the mesh.
+    pub fn positions(&self) -> &Buffer {
+        &self.positions
+    }
+
+    pub fn triangles(&self) -> &Buffer {
+        &self.triangles
+    }
+
+    pub fn vertex_count(&self) -> u32 {
+        self.vertex_count
+    }
+
+    pub fn triangle_count(&self) -> u32 {
+        self.triangle_count
+    }
+}
+
+/// The G-buffer images, one layer per view: ids (`R32_UINT`, triangle id + 1, 0 =
+/// background), barycentrics (`RG32_SFLOAT`, weights of corners 0 and 1), optionally
+/// camera-space depth (`R32_SFLOAT`, 0 = background), and the depth-test buffer.
+pub struct Gbuffer {
+    pub ids: Image,
+    pub bary: Image,
+    pub depth: Option<Image>,
+    depth_test: Image,
+}
+
+impl Gbuffer {
+    /// Images for `views` views of `width` x `height`; `with_depth` adds the depth output.
+    pub fn new(
+        ctx: &Context,
+        width: u32,
+        height: u32,
+        views: u32,
+        with_depth: bool,
+    ) -> Result<Self> {
+        Ok(Self {
+            ids: Image::new(
+                ctx,
+                "gbuffer ids",
+                Format::R32Uint,
+                width,
+                height,
+                views,
+                true,
+            )?,
+            bary: Image::new(
+                ctx,
+                "gbuffer bary",
+                Format::Rg32Float,
+                width,
+                height,
+                views,
+                true,
+            )?,
+            depth: with_depth
+                .then(|| {
+                    Image::new(
+                        ctx,
+                        "gbuffer depth",
+                        Format::R32Float,
+                        width,
+                        height,
+                        views,
+                        true,
+                    )
+                })
+                .transpose()?,
+            depth_test: Image::new(
+                ctx,
+                "gbuffer depth test",
+                Format::D32Float,
+                width,
+                height,
+                views,
+                false,
+            )?,
+        })
+    }
+
+    pub fn width(&self) -> u32 {
+        self.ids.width()
+    }
+
+    pub fn height(&self) -> u32 {
+        self.ids.height()
+    }
+
+    pub fn views(&self) -> u32 {
+        self.ids.layers()
+    }
+
+    fn outputs(&self) -> Vec<&Image> {
+        [&self.ids, &self.bary]
+            .into_iter()
+            .chain(self.depth.as_ref())
+            .collect()
+    }
+
+    /// Records copies of the G-buffer (left in the attachment state by
+    /// [`Rasterizer::draw`]) into `readback`, which must be [`GbufferReadback::new`]'s.
+    pub fn record_readback(&self, rec: &mut Recorder, readback: &GbufferReadback) -> Result<()> {
+        let outputs = self.outputs();
+        rec.transition(&outputs, ImageState::Attachment, ImageState::TransferSrc);
+        rec.copy_image_to_buffer(&self.ids, &readback.ids)?;
+        rec.copy_image_to_buffer(&self.bary, &readback.bary)?;
+        if let (Some(depth), Some(buffer)) = (&self.depth, &readback.depth) {
+            rec.copy_image_to_buffer(depth, buffer)?;
+        }
+        Ok(())
+    }
+}
+
+/// Host-visible buffers that receive a G-buffer.
+pub struct GbufferReadback {
+    ids: Buffer,
+    bary: Buffer,
+    depth: Option<Buffer>,
+    shape: (usize, usize, usize),
+}
+
+impl GbufferReadback {
+    pub fn new(ctx: &Context, gbuffer: &Gbuffer) -> Result<Self> {
+        let buffer =
+            |name, image: &Image| Buffer::new(ctx, name, image.byte_size(), BufferKind::Readback);
+        Ok(Self {
+            ids: buffer("readback ids", &gbuffer.ids)?,
+            bary: buffer("readback bary", &gbuffer.bary)?,
+            depth: gbuffer
+                .depth
+                .as_ref()
+                .map(|d| buffer("readback depth", d))
+                .transpose()?,
+            shape: (
+                gbuffer.views() as usize,
+                gbuffer.height() as usize,
+                gbuffer.width() as usize,
+            ),
+        })
+    }
+
+    /// The G-buffer on the host (after the recording that filled it has completed).
+    pub fn read(&mut self) -> Result<GbufferData> {
+        let (v, h, w) = self.shape;
+        let n = v * h * w;
+        let ids = self.ids.read_range::<u32>(0, n)?;
+        let bary = self.bary.read_range::<f32>(0, 2 * n)?;
+        let depth = self
+            .depth
+            .as_mut()
+            .map(|d| d.read_range::<f32>(0, n))
+            .transpose()?;
+        let shape_err = |e: ndarray::ShapeError| Error::InvalidInput(e.to_string());
+        Ok(GbufferData {
+            ids: Array3::from_shape_vec((v, h, w), ids).map_err(shape_err)?,
+            bary: Array4::from_shape_vec((v, h, w, 2), bary).map_err(shape_err)?,
+            depth: depth
+                .map(|d| Array3::from_shape_vec((v, h, w), d).map_err(shape_err))
+                .transpose()?,
+        })
+    }
+}
+
+/// A G-buffer on the host, indexed [view, row, column].
+#[derive(Clone, Debug)]
+pub struct GbufferData {
+    /// Triangle id + 1, 0 where no triangle covers the pixel centre.
+    pub ids: Array3<u32>,
+    /// Barycentric weights of corners 0 and 1 (corner 2: 1 - u - v); 0 on background.
+    pub bary: Array4<f32>,
+    /// Camera-space z in metres, 0 on background (when asked for).
+    pub depth: Option<Array3<f32>>,
+}
+
+/// The forward rasterizer's pipelines.
+pub struct Rasterizer {
+    gbuffer: GraphicsPipeline,
+    gbuffer_with_depth: GraphicsPipeline,
+    shaded: GraphicsPipeline,
+    /// Triangles per draw, so that each draw's index range fits `maxStorageBufferRange`.
+    chunk_triangles: u32,
+}
+
+const VIEW_CONSTANT_BYTES: u32 = std::mem::size_of::<ViewConstants>() as u32;
+
+impl Rasterizer {
+    pub fn new(ctx: &Context) -> Result<Self> {
+        let bindings = [BindingKind::StorageBuffer, BindingKind::StorageBuffer];
+        let vertex = spirv(GBUFFER_VERT)?;
+        let gbuffer_pipeline = |name, fragment: &[u8], colors: &[Format]| {
+            GraphicsPipeline::new(
+                ctx,
+                &GraphicsPipelineDesc {
+                    name,
+                    vertex: &vertex,
+                    fragment: &spirv(fragment)?,
+                    bindings: &bindings,
+                    push_constant_bytes: VIEW_CONSTANT_BYTES,
+                    color_formats: colors,
+                    depth_format: Some(Format::D32Float),
+                },
+            )
+        };
+        let gbuffer = gbuffer_pipeline(
+            "gbuffer",
+            GBUFFER_FRAG,
+            &[Format::R32Uint, Format::Rg32Float],
+        )?;
+        let gbuffer_with_depth = gbuffer_pipeline(
+            "gbuffer with depth",
+            GBUFFER_DEPTH_FRAG,
+            &[Format::R32Uint, Format::Rg32Float, Format::R32Float],
+        )?;
+        let shaded = GraphicsPipeline::new(
+            ctx,
+            &GraphicsPipelineDesc {
+                name: "shaded",
+                vertex: &spirv(SHADED_VERT)?,
+                fragment: &spirv(SHADED_FRAG)?,
+                bindings: &[BindingKind::StorageBuffer],
+                push_constant_bytes: VIEW_CONSTANT_BYTES,
+                color_formats: &[Format::Rgba8Unorm],
+                depth_format: Some(Format::D32Float),
+            },
+        )?;
+        let info = ctx.info();
+        // Offsets of chunk ranges must be aligned; 256 triangles = 3 KiB keeps any
+        // power-of-two alignment up to 1 KiB.
+        let per_chunk = info.max_storage_buffer_range as u64 / 12;
+        let chunk_triangles = ((per_chunk / 256) * 256).clamp(256, u32::MAX as u64 / 3) as u32;
+        Ok(Self {
+            gbuffer,
+            gbuffer_with_depth,
+            shaded,
+            chunk_triangles,
+        })
+    }
+
+    fn check_views(views: &[View], width: u32, height: u32, layers: u32) -> Result<()> {
+        if views.is_empty() || views.len() as u32 > layers {
+            return Err(Error::InvalidInput(format!(
+                "{} views for a target with {layers} layers",
+                views.len()
+            )));
+        }
+        for v in views {
+            if (v.camera.width, v.camera.height) != (width, height) {
+                return Err(Error::InvalidInput(format!(
+                    "camera of {}x{} does not match the target of {width}x{height}",
+                    v.camera.width, v.camera.height
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// Records the G-buffer pass for every view (view k into layer k). The images end in
+    /// [`ImageState::Attachment`].
+    pub fn draw(
+        &self,
+        rec: &mut Recorder,
+        mesh: &MeshBuffers,
+        views: &[View],
+        target: &Gbuffer,
+    ) -> Result<()> {
+        Self::check_views(views, target.width(), target.height(), target.views())?;
+        let mut images = target.outputs();
+        images.push(&target.depth_test);
+        rec.transition(&images, ImageState::Undefined, ImageState::Attachment);
+        let pipeline = if target.depth.is_some() {
+            &self.gbuffer_with_depth
+        } else {
+            &self.gbuffer
+        };
+        for (layer, view) in views.iter().enumerate() {
+            let layer = layer as u32;
+            let mut colors = vec![
+                (&target.ids, layer, [0.0; 4]),
+                (&target.bary, layer, [0.0; 4]),
+            ];
+            if let Some(depth) = &target.depth {
+                colors.push((depth, layer, [0.0; 4]));
+            }
+            rec.begin_rendering(&RenderTarget {
+                colors: &colors,
+                depth: Some((&target.depth_test, layer, 0.0)),
+            })?;
+            rec.bind_graphics(pipeline);
+            let mut first = 0u32;
+            while first < mesh.triangle_count {
+                let count = self.chunk_triangles.min(mesh.triangle_count - first);
+                rec.push_graphics_bindings(
+                    pipeline,
+                    &[
+                        Binding::buffer(&mesh.positions),
+                        Binding::Buffer {
+                            buffer: &mesh.triangles,
+                            offset: first as u64 * 12,
+                            range: count as u64 * 12,
+                        },
+                    ],
+                );
+                rec.graphics_constants(pipeline, &ViewConstants::new(view, first));
+                rec.draw(3 * count);
+                first += count;
+            }
+            rec.end_rendering();
+        }
+        Ok(())
+    }
+
+    /// Records the plain colour render (Lambert, one light at the camera) of every view
+    /// into `target` (view k into layer k). The images end in [`ImageState::Attachment`].
+    pub fn draw_shaded(
+        &self,
+        rec: &mut Recorder,
+        mesh: &MeshBuffers,
+        views: &[View],
+        target: &ShadedTarget,
+    ) -> Result<()> {
+        let (w, h, layers) = (
+            target.colour.width(),
+            target.colour.height(),
+            target.colour.layers(),
+        );
+        Self::check_views(views, w, h, layers)?;
+        rec.transition(
+            &[&target.colour, &target.depth_test],
+            ImageState::Undefined,
+            ImageState::Attachment,
+        );
+        for (layer, view) in views.iter().enumerate() {
+            let layer = layer as u32;
+            rec.begin_rendering(&RenderTarget {
+                colors: &[(&target.colour, layer, [1.0; 4])],
+                depth: Some((&target.depth_test, layer, 0.0)),
+            })?;
+            rec.bind_graphics(&self.shaded);
+            rec.push_graphics_bindings(&self.shaded, &[Binding::buffer(&mesh.positions)]);
+            rec.graphics_constants(&self.shaded, &ViewConstants::new(view, 0));
+            rec.draw_indexed(&mesh.triangles, 3 * mesh.triangle_count);
+            rec.end_rendering();
+        }
+        Ok(())
+    }
+
+    /// One-shot convenience: uploads `mesh`, draws every view and reads the G-buffer back.
+    pub fn render(
+        &self,
+        ctx: &Context,
+        mesh: &Mesh,
+        views: &[View],
+        with_depth: bool,
+    ) -> Result<GbufferData> {
+        let first = views
+            .first()
+            .ok_or_else(|| Error::InvalidInput("no views to render".into()))?;
+        let buffers = MeshBuffers::new(ctx, mesh)?;
+        let target = Gbuffer::new(
+            ctx,
+            first.camera.width,
+            first.camera.height,
+            views.len() as u32,
+            with_depth,
+        )?;
+        let mut readback = GbufferReadback::new(ctx, &target)?;
+        let mut rec = Recorder::new(ctx)?;
+        self.draw(&mut rec, &buffers, views, &target)?;
+        target.record_readback(&mut rec, &readback)?;
+        ctx.submit_and_wait(rec)?;
+        readback.read()
+    }
+
+    /// One-shot convenience: the shaded colour pictures (RGBA8, [view, row, column, channel]).
+    pub fn render_shaded(&self, ctx: &Context, mesh: &Mesh, views: &[View]) -> Result<Array4<u8>> {
+        let first = views
+            .first()
+            .ok_or_else(|| Error::InvalidInput("no views to render".into()))?;
+        let (w, h, n) = (first.camera.width, first.camera.height, views.len() as u32);
+        let buffers = MeshBuffers::new(ctx, mesh)?;
+        let target = ShadedTarget::new(ctx, w, h, n)?;
+        let mut readback = Buffer::new(
+            ctx,
+            "readback colour",
+            target.colour.byte_size(),
+            BufferKind::Readback,
+        )?;
+        let mut rec = Recorder::new(ctx)?;
+        self.draw_shaded(&mut rec, &buffers, views, &target)?;
+        rec.transition(
+            &[&target.colour],
+            ImageState::Attachment,
+            ImageState::TransferSrc,
+        );
+        rec.copy_image_to_buffer(&target.colour, &readback)?;
+        ctx.submit_and_wait(rec)?;
+        let pixels = readback.read_range::<u8>(0, target.colour.byte_size() as usize)?;
+        Array4::from_shape_vec((n as usize, h as usize, w as usize, 4), pixels)
+            .map_err(|e| Error::InvalidInput(e.to_string()))
+    }
+}
+
+/// Colour and depth-test images of the plain shaded render.
+pub struct ShadedTarget {
+    pub colour: Image,
+    depth_test: Image,
+}
+
+impl ShadedTarget {
+    pub fn new(ctx: &Context, width: u32, height: u32, views: u32) -> Result<Self> {
+        Ok(Self {
+            colour: Image::new(
+                ctx,
+                "shaded colour",
+                Format::Rgba8Unorm,
+                width,
+                height,
+                views,
+                false,
+            )?,
+            depth_test: Image::new(
+                ctx,
+                "shaded depth test",
+                Format::D32Float,
+                width,
+                height,
+                views,
+                false,
+            )?,
+        })
+    }
+}
