@@ -206,6 +206,63 @@ impl Mesh {
         }
     }
 
+    /// A closed surface of revolution about the y axis: `profile` lists (radius, y) from
+    /// bottom to top (radii > 0); both ends are closed with a cap vertex on the axis.
+    /// `segments` around the axis. Outward counter-clockwise faces.
+    pub fn lathe(profile: &[(f32, f32)], segments: u32) -> Result<Self> {
+        if profile.len() < 2 || segments < 3 {
+            return Err(Error::InvalidInput(format!(
+                "a lathe needs at least 2 profile points and 3 segments, got {} and {segments}",
+                profile.len()
+            )));
+        }
+        if profile.iter().any(|&(r, y)| !(r > 0.0) || !r.is_finite() || !y.is_finite()) {
+            return Err(Error::InvalidInput("lathe radii must be finite and > 0".into()));
+        }
+        let rings = profile.len() as u32;
+        let mut positions = vec![[0.0, profile[0].1, 0.0]];
+        for &(r, y) in profile {
+            for s in 0..segments {
+                let phi = std::f32::consts::TAU * s as f32 / segments as f32;
+                positions.push([r * phi.cos(), y, r * phi.sin()]);
+            }
+        }
+        positions.push([0.0, profile[profile.len() - 1].1, 0.0]);
+        let top = positions.len() as u32 - 1;
+        let ring = |r: u32, s: u32| 1 + r * segments + s % segments;
+        let mut triangles = Vec::new();
+        for s in 0..segments {
+            triangles.push([0, ring(0, s), ring(0, s + 1)]);
+            triangles.push([top, ring(rings - 1, s + 1), ring(rings - 1, s)]);
+        }
+        for r in 0..rings - 1 {
+            for s in 0..segments {
+                let (a, b) = (ring(r, s), ring(r, s + 1));
+                let (c, d) = (ring(r + 1, s), ring(r + 1, s + 1));
+                triangles.push([a, c, d]);
+                triangles.push([a, d, b]);
+            }
+        }
+        Self::new(positions, triangles)
+    }
+
+    /// A bottle of about 0.25 m height (for demos and tests), centred at the origin.
+    pub fn bottle(segments: u32) -> Self {
+        let profile = [
+            (0.030, -0.125),
+            (0.036, -0.120),
+            (0.037, -0.100),
+            (0.037, 0.020),
+            (0.034, 0.045),
+            (0.022, 0.070),
+            (0.014, 0.090),
+            (0.013, 0.115),
+            (0.015, 0.118),
+            (0.015, 0.125),
+        ];
+        Self::lathe(&profile, segments).expect("the bottle profile is valid")
+    }
+
     /// A flat grid of `nx` x `ny` quads (two triangles each) in the z = 0 plane,
     /// spanning [0, nx * spacing] x [0, ny * spacing]; triangles are ordered row by row.
     pub fn grid(nx: u32, ny: u32, spacing: f32) -> Self {
@@ -266,14 +323,16 @@ mod tests {
 
     #[test]
     fn generators_are_welded_and_in_range() {
-        for mesh in [Mesh::uv_sphere(1.0, 8, 12), Mesh::grid(3, 2, 0.5)] {
+        for mesh in [Mesh::uv_sphere(1.0, 8, 12), Mesh::grid(3, 2, 0.5), Mesh::bottle(16)] {
             let checked = Mesh::new(mesh.positions.clone(), mesh.triangles.clone()).unwrap();
             assert_eq!(checked, mesh);
         }
         let sphere = Mesh::uv_sphere(1.0, 8, 12);
         assert_eq!(sphere.vertex_count(), 2 + 7 * 12);
-        // Closed surface: V - E + F = 2 with E = 3F / 2.
-        let (v, f) = (sphere.vertex_count() as i64, sphere.triangle_count() as i64);
-        assert_eq!(v - 3 * f / 2 + f, 2);
+        // Closed surfaces: V - E + F = 2 with E = 3F / 2.
+        for closed in [sphere, Mesh::bottle(16)] {
+            let (v, f) = (closed.vertex_count() as i64, closed.triangle_count() as i64);
+            assert_eq!(v - 3 * f / 2 + f, 2);
+        }
     }
 }
