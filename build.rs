@@ -23,7 +23,7 @@ fn main() {
         let mut options = shaderc::CompileOptions::new().expect("shaderc options");
         options.set_target_env(
             shaderc::TargetEnv::Vulkan,
-            shaderc::EnvVersion::Vulkan1_3 as u32,
+            shaderc::EnvVersion::Vulkan1_2 as u32,
         );
         options.set_optimization_level(shaderc::OptimizationLevel::Performance);
         options.set_generate_debug_info();

@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 
 use vkdr::gpu::{Context, Recorder, Recording, Timestamps};
-use vkdr::raster::{Gbuffer, MeshBuffers, Rasterizer, ShadedTarget, View};
+use vkdr::raster::{Gbuffer, MeshBuffers, Rasterizer, ShadedTarget, View, ViewBuffers};
 use vkdr::{Camera, Mesh, Pose};
 
 const SIZE: u32 = 1024;
@@ -33,7 +33,12 @@ fn record(ctx: &Context, stamps: &Timestamps, pass: impl FnOnce(&mut Recorder)) 
     rec.finish().expect("finish")
 }
 
-fn gpu_time(ctx: &Context, recording: &Recording, stamps: &Timestamps, iterations: u64) -> Duration {
+fn gpu_time(
+    ctx: &Context,
+    recording: &Recording,
+    stamps: &Timestamps,
+    iterations: u64,
+) -> Duration {
     let mut total = 0.0;
     for _ in 0..iterations {
         ctx.replay(recording).expect("replay");
@@ -47,7 +52,10 @@ fn forward(c: &mut Criterion) {
     let ctx = Context::new().expect("a Vulkan device (run tools/setup.sh)");
     let rasterizer = Rasterizer::new(&ctx).expect("rasterizer");
     let camera = Camera::centered(2.0 * SIZE as f64, SIZE, SIZE).unwrap();
-    let views = [View { camera, pose: Pose::new([0.0, 0.0, 0.25], [0.3, 0.2, 0.0]).unwrap() }];
+    let views = [View {
+        camera,
+        pose: Pose::new([0.0, 0.0, 0.25], [0.3, 0.2, 0.0]).unwrap(),
+    }];
     let max_vertices: usize = std::env::var("VKDR_BENCH_MAX_VERTICES")
         .ok()
         .and_then(|v| v.parse().ok())
@@ -55,15 +63,29 @@ fn forward(c: &mut Criterion) {
     eprintln!("device: {} ({})", ctx.info().name, ctx.info().driver_info);
 
     let mut group = c.benchmark_group(format!("forward_{SIZE}"));
-    group.sample_size(10).warm_up_time(Duration::from_millis(500));
-    for vertices in [1_000, 10_000, 100_000, 1_000_000].into_iter().filter(|&v| v <= max_vertices) {
+    group
+        .sample_size(10)
+        .warm_up_time(Duration::from_millis(500));
+    for vertices in [1_000, 10_000, 100_000, 1_000_000]
+        .into_iter()
+        .filter(|&v| v <= max_vertices)
+    {
         let mesh = sphere(vertices);
         let buffers = MeshBuffers::new(&ctx, &mesh).unwrap();
         let gbuffer = Gbuffer::new(&ctx, SIZE, SIZE, 1, false).unwrap();
         let shaded = ShadedTarget::new(&ctx, SIZE, SIZE, 1).unwrap();
         let stamps = Timestamps::new(&ctx, 2).unwrap();
-        let gbuffer_pass = record(&ctx, &stamps, |rec| rasterizer.draw(rec, &buffers, &views, &gbuffer).unwrap());
-        let plain_pass = record(&ctx, &stamps, |rec| rasterizer.draw_shaded(rec, &buffers, &views, &shaded).unwrap());
+        let view_buffers = ViewBuffers::new(&ctx, &views).unwrap();
+        let gbuffer_pass = record(&ctx, &stamps, |rec| {
+            rasterizer
+                .draw(rec, &buffers, &view_buffers, &gbuffer)
+                .unwrap()
+        });
+        let plain_pass = record(&ctx, &stamps, |rec| {
+            rasterizer
+                .draw_shaded(rec, &buffers, &views, &shaded)
+                .unwrap()
+        });
         let v = mesh.vertex_count();
         for (name, pass) in [("gbuffer", &gbuffer_pass), ("plain", &plain_pass)] {
             group.bench_function(BenchmarkId::new(format!("gpu/{name}"), v), |b| {

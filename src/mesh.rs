@@ -216,8 +216,13 @@ impl Mesh {
                 profile.len()
             )));
         }
-        if profile.iter().any(|&(r, y)| !(r > 0.0) || !r.is_finite() || !y.is_finite()) {
-            return Err(Error::InvalidInput("lathe radii must be finite and > 0".into()));
+        if profile
+            .iter()
+            .any(|&(r, y)| !(r > 0.0) || !r.is_finite() || !y.is_finite())
+        {
+            return Err(Error::InvalidInput(
+                "lathe radii must be finite and > 0".into(),
+            ));
         }
         let rings = profile.len() as u32;
         let mut positions = vec![[0.0, profile[0].1, 0.0]];
@@ -323,7 +328,11 @@ mod tests {
 
     #[test]
     fn generators_are_welded_and_in_range() {
-        for mesh in [Mesh::uv_sphere(1.0, 8, 12), Mesh::grid(3, 2, 0.5), Mesh::bottle(16)] {
+        for mesh in [
+            Mesh::uv_sphere(1.0, 8, 12),
+            Mesh::grid(3, 2, 0.5),
+            Mesh::bottle(16),
+        ] {
             let checked = Mesh::new(mesh.positions.clone(), mesh.triangles.clone()).unwrap();
             assert_eq!(checked, mesh);
         }

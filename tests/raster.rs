@@ -2,9 +2,10 @@
 //!
 //! Tolerances: ids are compared exactly on every pixel whose centre lies farther than
 //! 2^-subPixelPrecisionBits pixels from every projected edge (closer pixels depend on the
-//! device's vertex snapping). Barycentrics are computed on the device from unsnapped
-//! clip-space vertices in float32, so they are compared within 1e-4 absolute; depth
-//! (interpolated with the same weights) within 1e-5 relative.
+//! device's vertex snapping). Barycentrics (interpolated perspective-correctly by the
+//! device) are compared within 1e-4 absolute and depth within 1e-5 relative, on pixels
+//! of triangles no smaller than a few pixels: at that size the snapping of vertices to
+//! 2^-8 px moves a weight by less than 1e-4.
 
 mod common;
 

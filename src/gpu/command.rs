@@ -313,15 +313,29 @@ impl Recorder {
         unsafe { self.device().cmd_draw(self.raw, vertex_count, 1, 0, 0) };
     }
 
-    /// Indexed draw with 32-bit indices from `indices`.
-    pub fn draw_indexed(&mut self, indices: &Buffer, index_count: u32) {
+    /// Indexed draw of `index_count` 32-bit indices from `indices`, starting at index
+    /// `first_index`; `gl_PrimitiveID` counts from 0 in each draw. The index buffer is
+    /// bound at the first index (lavapipe draws nothing for a large `firstIndex`).
+    pub fn draw_indexed(&mut self, indices: &Buffer, first_index: u32, index_count: u32) {
         // SAFETY: as above; the index buffer was created with index usage.
         unsafe {
-            self.device()
-                .cmd_bind_index_buffer(self.raw, indices.raw, 0, vk::IndexType::UINT32);
+            self.device().cmd_bind_index_buffer(
+                self.raw,
+                indices.raw,
+                first_index as u64 * 4,
+                vk::IndexType::UINT32,
+            );
             self.device()
                 .cmd_draw_indexed(self.raw, index_count, 1, 0, 0, 0);
         }
+    }
+
+    /// Dispatches enough workgroups of `local_size` invocations (at most 4096 in x) for
+    /// shaders that loop over `items` with a grid stride (`glsl/include/linear.glsl`),
+    /// once per layer in z.
+    pub fn dispatch_linear(&mut self, items: u64, local_size: u32, layers: u32) {
+        let groups = items.div_ceil(local_size as u64).clamp(1, 4096);
+        self.dispatch(groups as u32, 1, layers);
     }
 
     pub fn dispatch(&mut self, x: u32, y: u32, z: u32) {

@@ -488,6 +488,10 @@ fn query_features(instance: &ash::Instance, pd: vk::PhysicalDevice) -> FeatureSu
                     "fragment stage storage and atomics",
                     core.fragment_stores_and_atomics == vk::TRUE,
                 ),
+                (
+                    "geometry shader (for gl_PrimitiveID)",
+                    core.geometry_shader == vk::TRUE,
+                ),
             ],
         }
     }
@@ -618,7 +622,8 @@ fn create_device(
     ];
     let core = vk::PhysicalDeviceFeatures::default()
         .vertex_pipeline_stores_and_atomics(true)
-        .fragment_stores_and_atomics(true);
+        .fragment_stores_and_atomics(true)
+        .geometry_shader(true);
     let mut v12 = vk::PhysicalDeviceVulkan12Features::default().timeline_semaphore(true);
     let mut v13 = vk::PhysicalDeviceVulkan13Features::default()
         .synchronization2(true)

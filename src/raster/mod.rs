@@ -30,10 +30,11 @@ pub struct View {
     pub pose: Pose,
 }
 
-/// Push constants of the raster shaders (`glsl/include/camera.glsl`).
+/// One view as the shaders see it (`glsl/include/views.glsl`): the plain render's push
+/// constants and an element of [`ViewBuffers`].
 #[repr(C)]
-#[derive(Clone, Copy, Pod, Zeroable)]
-struct ViewConstants {
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct ViewData {
     object_to_camera: [[f32; 4]; 4],
     intrinsics: [f32; 4],
     size: [f32; 2],
@@ -41,16 +42,94 @@ struct ViewConstants {
     first_triangle: u32,
 }
 
-impl ViewConstants {
-    fn new(view: &View, first_triangle: u32) -> Self {
+impl ViewData {
+    pub fn new(view: &View) -> Self {
         let c = &view.camera;
         Self {
             object_to_camera: view.pose.matrix_f32(),
             intrinsics: [c.fx as f32, c.fy as f32, c.cx as f32, c.cy as f32],
             size: [c.width as f32, c.height as f32],
             near: c.near as f32,
-            first_triangle,
+            first_triangle: 0,
         }
+    }
+}
+
+/// Push constants of the G-buffer pass.
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct GbufferConstants {
+    view: u32,
+    first_triangle: u32,
+}
+
+/// The views of one mesh on the device: their camera data, read by the G-buffer pass and
+/// by compute passes (which may also update it).
+pub struct ViewBuffers {
+    views: Buffer,
+    count: u32,
+    width: u32,
+    height: u32,
+}
+
+impl ViewBuffers {
+    /// Buffers for `views`; all views must share one image size.
+    pub fn new(ctx: &Context, views: &[View]) -> Result<Self> {
+        let first = views
+            .first()
+            .ok_or_else(|| Error::InvalidInput("no views to render".into()))?;
+        let count = views.len() as u32;
+        let mut buffers = Self {
+            views: Buffer::new(
+                ctx,
+                "views",
+                count as u64 * std::mem::size_of::<ViewData>() as u64,
+                BufferKind::Device,
+            )?,
+            count,
+            width: first.camera.width,
+            height: first.camera.height,
+        };
+        buffers.set(views)?;
+        Ok(buffers)
+    }
+
+    /// Replaces the camera data of all views (same count and image size).
+    pub fn set(&mut self, views: &[View]) -> Result<()> {
+        if views.len() as u32 != self.count {
+            return Err(Error::InvalidInput(format!(
+                "{} views given for buffers of {}",
+                views.len(),
+                self.count
+            )));
+        }
+        for v in views {
+            if (v.camera.width, v.camera.height) != (self.width, self.height) {
+                return Err(Error::InvalidInput(format!(
+                    "camera of {}x{} does not match the other views' {}x{}",
+                    v.camera.width, v.camera.height, self.width, self.height
+                )));
+            }
+        }
+        let data: Vec<ViewData> = views.iter().map(ViewData::new).collect();
+        self.views.write(0, &data)
+    }
+
+    pub fn count(&self) -> u32 {
+        self.count
+    }
+
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    /// The `ViewData` array.
+    pub fn views(&self) -> &Buffer {
+        &self.views
     }
 }
 
@@ -270,11 +349,8 @@ pub struct Rasterizer {
     chunk_triangles: u32,
 }
 
-const VIEW_CONSTANT_BYTES: u32 = std::mem::size_of::<ViewConstants>() as u32;
-
 impl Rasterizer {
     pub fn new(ctx: &Context) -> Result<Self> {
-        let bindings = [BindingKind::StorageBuffer, BindingKind::StorageBuffer];
         let vertex = spirv(GBUFFER_VERT)?;
         let gbuffer_pipeline = |name, fragment: &[u8], colors: &[Format]| {
             GraphicsPipeline::new(
@@ -283,8 +359,8 @@ impl Rasterizer {
                     name,
                     vertex: &vertex,
                     fragment: &spirv(fragment)?,
-                    bindings: &bindings,
-                    push_constant_bytes: VIEW_CONSTANT_BYTES,
+                    bindings: &[BindingKind::StorageBuffer; 3],
+                    push_constant_bytes: std::mem::size_of::<GbufferConstants>() as u32,
                     color_formats: colors,
                     depth_format: Some(Format::D32Float),
                 },
@@ -307,7 +383,7 @@ impl Rasterizer {
                 vertex: &spirv(SHADED_VERT)?,
                 fragment: &spirv(SHADED_FRAG)?,
                 bindings: &[BindingKind::StorageBuffer],
-                push_constant_bytes: VIEW_CONSTANT_BYTES,
+                push_constant_bytes: std::mem::size_of::<ViewData>() as u32,
                 color_formats: &[Format::Rgba8Unorm],
                 depth_format: Some(Format::D32Float),
             },
@@ -325,34 +401,28 @@ impl Rasterizer {
         })
     }
 
-    fn check_views(views: &[View], width: u32, height: u32, layers: u32) -> Result<()> {
-        if views.is_empty() || views.len() as u32 > layers {
-            return Err(Error::InvalidInput(format!(
-                "{} views for a target with {layers} layers",
-                views.len()
-            )));
-        }
-        for v in views {
-            if (v.camera.width, v.camera.height) != (width, height) {
-                return Err(Error::InvalidInput(format!(
-                    "camera of {}x{} does not match the target of {width}x{height}",
-                    v.camera.width, v.camera.height
-                )));
-            }
-        }
-        Ok(())
-    }
-
-    /// Records the G-buffer pass for every view (view k into layer k). The images end in
-    /// [`ImageState::Attachment`].
+    /// Records the G-buffer pass for every view (view k into layer k).
+    /// The images end in [`ImageState::Attachment`].
     pub fn draw(
         &self,
         rec: &mut Recorder,
         mesh: &MeshBuffers,
-        views: &[View],
+        views: &ViewBuffers,
         target: &Gbuffer,
     ) -> Result<()> {
-        Self::check_views(views, target.width(), target.height(), target.views())?;
+        if (views.width, views.height) != (target.width(), target.height())
+            || views.count > target.views()
+        {
+            return Err(Error::InvalidInput(format!(
+                "{} views of {}x{} do not fit a G-buffer of {} layers of {}x{}",
+                views.count,
+                views.width,
+                views.height,
+                target.views(),
+                target.width(),
+                target.height()
+            )));
+        }
         let mut images = target.outputs();
         images.push(&target.depth_test);
         rec.transition(&images, ImageState::Undefined, ImageState::Attachment);
@@ -361,8 +431,7 @@ impl Rasterizer {
         } else {
             &self.gbuffer
         };
-        for (layer, view) in views.iter().enumerate() {
-            let layer = layer as u32;
+        for layer in 0..views.count {
             let mut colors = vec![
                 (&target.ids, layer, [0.0; 4]),
                 (&target.bary, layer, [0.0; 4]),
@@ -382,6 +451,7 @@ impl Rasterizer {
                     pipeline,
                     &[
                         Binding::buffer(&mesh.positions),
+                        Binding::buffer(&views.views),
                         Binding::Buffer {
                             buffer: &mesh.triangles,
                             offset: first as u64 * 12,
@@ -389,7 +459,13 @@ impl Rasterizer {
                         },
                     ],
                 );
-                rec.graphics_constants(pipeline, &ViewConstants::new(view, first));
+                rec.graphics_constants(
+                    pipeline,
+                    &GbufferConstants {
+                        view: layer,
+                        first_triangle: first,
+                    },
+                );
                 rec.draw(3 * count);
                 first += count;
             }
@@ -398,8 +474,9 @@ impl Rasterizer {
         Ok(())
     }
 
-    /// Records the plain colour render (Lambert, one light at the camera) of every view
-    /// into `target` (view k into layer k). The images end in [`ImageState::Attachment`].
+    /// Records the plain colour render (Lambert, one light at the camera; vertices
+    /// transformed in the vertex shader) of every view into `target` (view k into layer
+    /// k). The images end in [`ImageState::Attachment`].
     pub fn draw_shaded(
         &self,
         rec: &mut Recorder,
@@ -412,7 +489,21 @@ impl Rasterizer {
             target.colour.height(),
             target.colour.layers(),
         );
-        Self::check_views(views, w, h, layers)?;
+        if views.is_empty() || views.len() as u32 > layers {
+            return Err(Error::InvalidInput(format!(
+                "{} views for {layers} layers",
+                views.len()
+            )));
+        }
+        if let Some(v) = views
+            .iter()
+            .find(|v| (v.camera.width, v.camera.height) != (w, h))
+        {
+            return Err(Error::InvalidInput(format!(
+                "camera of {}x{} does not match the target of {w}x{h}",
+                v.camera.width, v.camera.height
+            )));
+        }
         rec.transition(
             &[&target.colour, &target.depth_test],
             ImageState::Undefined,
@@ -426,8 +517,8 @@ impl Rasterizer {
             })?;
             rec.bind_graphics(&self.shaded);
             rec.push_graphics_bindings(&self.shaded, &[Binding::buffer(&mesh.positions)]);
-            rec.graphics_constants(&self.shaded, &ViewConstants::new(view, 0));
-            rec.draw_indexed(&mesh.triangles, 3 * mesh.triangle_count);
+            rec.graphics_constants(&self.shaded, &ViewData::new(view));
+            rec.draw_indexed(&mesh.triangles, 0, 3 * mesh.triangle_count);
             rec.end_rendering();
         }
         Ok(())
@@ -441,20 +532,18 @@ impl Rasterizer {
         views: &[View],
         with_depth: bool,
     ) -> Result<GbufferData> {
-        let first = views
-            .first()
-            .ok_or_else(|| Error::InvalidInput("no views to render".into()))?;
         let buffers = MeshBuffers::new(ctx, mesh)?;
+        let view_buffers = ViewBuffers::new(ctx, views)?;
         let target = Gbuffer::new(
             ctx,
-            first.camera.width,
-            first.camera.height,
+            view_buffers.width,
+            view_buffers.height,
             views.len() as u32,
             with_depth,
         )?;
         let mut readback = GbufferReadback::new(ctx, &target)?;
         let mut rec = Recorder::new(ctx)?;
-        self.draw(&mut rec, &buffers, views, &target)?;
+        self.draw(&mut rec, &buffers, &view_buffers, &target)?;
         target.record_readback(&mut rec, &readback)?;
         ctx.submit_and_wait(rec)?;
         readback.read()

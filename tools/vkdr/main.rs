@@ -16,7 +16,11 @@ use vkdr::raster::{Rasterizer, View};
 use vkdr::{Camera, Mesh, Pose};
 
 #[derive(Parser)]
-#[command(name = "vkdr", version, about = "Differentiable rasterization and deformable registration on Vulkan")]
+#[command(
+    name = "vkdr",
+    version,
+    about = "Differentiable rasterization and deformable registration on Vulkan"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -82,19 +86,43 @@ fn info() -> Result<()> {
     let ctx = Context::new()?;
     let d = ctx.info();
     println!("chosen: {} ({}), index {}", d.name, d.kind, d.index);
-    println!("  Vulkan {} / driver {} {}", d.api_version, d.driver_name, d.driver_info);
+    println!(
+        "  Vulkan {} / driver {} {}",
+        d.api_version, d.driver_name, d.driver_info
+    );
     println!("  features:");
     for (name, has) in &d.features {
         println!("    {:<48} {}", name, if *has { "yes" } else { "MISSING" });
     }
     println!("  limits:");
-    println!("    subPixelPrecisionBits           {}", d.sub_pixel_precision_bits);
-    println!("    maxImageDimension2D             {}", d.max_image_dimension_2d);
-    println!("    maxStorageBufferRange           {} MiB", d.max_storage_buffer_range >> 20);
-    println!("    minStorageBufferOffsetAlignment {}", d.min_storage_buffer_offset_alignment);
-    println!("    maxComputeWorkGroupInvocations  {}", d.max_compute_workgroup_invocations);
-    println!("    maxPushConstantsSize            {}", d.max_push_constants_size);
-    println!("    timestampPeriod                 {} ns", d.timestamp_period_ns);
+    println!(
+        "    subPixelPrecisionBits           {}",
+        d.sub_pixel_precision_bits
+    );
+    println!(
+        "    maxImageDimension2D             {}",
+        d.max_image_dimension_2d
+    );
+    println!(
+        "    maxStorageBufferRange           {} MiB",
+        d.max_storage_buffer_range >> 20
+    );
+    println!(
+        "    minStorageBufferOffsetAlignment {}",
+        d.min_storage_buffer_offset_alignment
+    );
+    println!(
+        "    maxComputeWorkGroupInvocations  {}",
+        d.max_compute_workgroup_invocations
+    );
+    println!(
+        "    maxPushConstantsSize            {}",
+        d.max_push_constants_size
+    );
+    println!(
+        "    timestampPeriod                 {} ns",
+        d.timestamp_period_ns
+    );
     Ok(())
 }
 
@@ -110,8 +138,16 @@ fn render(args: &RenderArgs) -> Result<()> {
 
     let ctx = Context::new()?;
     let rasterizer = Rasterizer::new(&ctx)?;
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    let written = write_views(&ctx, &rasterizer, &mesh, &[View { camera, pose }], &args.out, args.raw)?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    let written = write_views(
+        &ctx,
+        &rasterizer,
+        &mesh,
+        &[View { camera, pose }],
+        &args.out,
+        args.raw,
+    )?;
     println!(
         "rendered {} triangles at {width}x{height} on {}; wrote {}",
         mesh.triangle_count(),
@@ -133,10 +169,17 @@ fn write_views(
 ) -> Result<Vec<String>> {
     let gbuffer = rasterizer.render(ctx, mesh, views, true)?;
     let colour = rasterizer.render_shaded(ctx, mesh, views)?;
-    let depth = gbuffer.depth.as_ref().context("G-buffer rendered without depth")?;
+    let depth = gbuffer
+        .depth
+        .as_ref()
+        .context("G-buffer rendered without depth")?;
     let mut written = Vec::new();
     for k in 0..views.len() {
-        let prefix = if views.len() > 1 { format!("view{k}_") } else { String::new() };
+        let prefix = if views.len() > 1 {
+            format!("view{k}_")
+        } else {
+            String::new()
+        };
         let ids = gbuffer.ids.slice(s![k, .., ..]);
         let bary = gbuffer.bary.slice(s![k, .., .., ..]);
         let z = depth.slice(s![k, .., ..]);
@@ -146,16 +189,28 @@ fn write_views(
             written.push(path.display().to_string());
             Ok(())
         };
-        save("colour.png", pictures::colour(colour.slice(s![k, .., .., ..])))?;
+        save(
+            "colour.png",
+            pictures::colour(colour.slice(s![k, .., .., ..])),
+        )?;
         save("mask.png", pictures::mask(ids))?;
         save("ids.png", pictures::ids(ids))?;
         save("bary.png", pictures::barycentrics(ids, bary))?;
         save("depth.png", pictures::depth(z))?;
         if raw {
             for (name, result) in [
-                ("ids.npy", write_npy(&out.join(format!("{prefix}ids.npy")), &ids)),
-                ("bary.npy", write_npy(&out.join(format!("{prefix}bary.npy")), &bary)),
-                ("depth.npy", write_npy(&out.join(format!("{prefix}depth.npy")), &z)),
+                (
+                    "ids.npy",
+                    write_npy(&out.join(format!("{prefix}ids.npy")), &ids),
+                ),
+                (
+                    "bary.npy",
+                    write_npy(&out.join(format!("{prefix}bary.npy")), &bary),
+                ),
+                (
+                    "depth.npy",
+                    write_npy(&out.join(format!("{prefix}depth.npy")), &z),
+                ),
             ] {
                 result?;
                 written.push(out.join(format!("{prefix}{name}")).display().to_string());
@@ -185,11 +240,20 @@ fn demo(out: &Path) -> Result<()> {
     // Object +y (the bottle's up) is rotated to image-up (camera -y).
     let views: Vec<View> = [[3.14159, 0.0, 0.0], [2.7, 0.0, 0.6], [2.2, 0.9, -0.4]]
         .iter()
-        .map(|&rotation| View { camera, pose: Pose { translation: [0.0, 0.0, 0.6].into(), rotation: rotation.into() } })
+        .map(|&rotation| View {
+            camera,
+            pose: Pose {
+                translation: [0.0, 0.0, 0.6].into(),
+                rotation: rotation.into(),
+            },
+        })
         .collect();
     let rasterizer = Rasterizer::new(&ctx)?;
     let written = write_views(&ctx, &rasterizer, &mesh, &views, out, true)?;
-    println!("rendered {} views of 640x480 in one submission; wrote:", views.len());
+    println!(
+        "rendered {} views of 640x480 in one submission; wrote:",
+        views.len()
+    );
     for path in &written {
         println!("  {path}");
     }

@@ -7,7 +7,11 @@ use ndarray::ArrayView2;
 pub fn mask(ids: ArrayView2<u32>) -> DynamicImage {
     let (h, w) = ids.dim();
     DynamicImage::ImageLuma8(GrayImage::from_fn(w as u32, h as u32, |x, y| {
-        image::Luma([if ids[[y as usize, x as usize]] > 0 { 255 } else { 0 }])
+        image::Luma([if ids[[y as usize, x as usize]] > 0 {
+            255
+        } else {
+            0
+        }])
     }))
 }
 
@@ -19,7 +23,10 @@ pub fn ids(ids: ArrayView2<u32>) -> DynamicImage {
         if id == 0 {
             return Rgb([0, 0, 0]);
         }
-        let hash = id.wrapping_mul(0x9E37_79B1).rotate_left(13).wrapping_mul(0x85EB_CA6B);
+        let hash = id
+            .wrapping_mul(0x9E37_79B1)
+            .rotate_left(13)
+            .wrapping_mul(0x85EB_CA6B);
         let [r, g, b, _] = hash.to_le_bytes();
         Rgb([r | 0x40, g | 0x40, b | 0x40])
     }))
@@ -43,11 +50,17 @@ pub fn barycentrics(ids: ArrayView2<u32>, bary: ndarray::ArrayView3<f32>) -> Dyn
 pub fn depth(depth: ArrayView2<f32>) -> DynamicImage {
     let (h, w) = depth.dim();
     let covered = depth.iter().copied().filter(|&z| z > 0.0);
-    let (lo, hi) = covered.fold((f32::INFINITY, 0.0f32), |(lo, hi), z| (lo.min(z), hi.max(z)));
+    let (lo, hi) = covered.fold((f32::INFINITY, 0.0f32), |(lo, hi), z| {
+        (lo.min(z), hi.max(z))
+    });
     let span = (hi - lo).max(f32::EPSILON);
     DynamicImage::ImageLuma8(GrayImage::from_fn(w as u32, h as u32, |x, y| {
         let z = depth[[y as usize, x as usize]];
-        image::Luma([if z > 0.0 { (255.0 - 200.0 * (z - lo) / span).round() as u8 } else { 0 }])
+        image::Luma([if z > 0.0 {
+            (255.0 - 200.0 * (z - lo) / span).round() as u8
+        } else {
+            0
+        }])
     }))
 }
 
