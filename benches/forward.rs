@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 
 use vkdr::gpu::{Context, Recorder, Recording, Timestamps};
-use vkdr::raster::{Gbuffer, MeshBuffers, Rasterizer, ShadedTarget, View, ViewBuffers};
+use vkdr::raster::{Gbuffer, MeshBuffers, Outputs, Rasterizer, ShadedTarget, View, ViewBuffers};
 use vkdr::{Camera, Mesh, Pose};
 
 const SIZE: u32 = 1024;
@@ -72,7 +72,7 @@ fn forward(c: &mut Criterion) {
     {
         let mesh = sphere(vertices);
         let buffers = MeshBuffers::new(&ctx, &mesh).unwrap();
-        let gbuffer = Gbuffer::new(&ctx, SIZE, SIZE, 1, false).unwrap();
+        let gbuffer = Gbuffer::new(&ctx, SIZE, SIZE, 1, Outputs::IdsBary).unwrap();
         let shaded = ShadedTarget::new(&ctx, SIZE, SIZE, 1).unwrap();
         let stamps = Timestamps::new(&ctx, 2).unwrap();
         let view_buffers = ViewBuffers::new(&ctx, &views).unwrap();

@@ -10,7 +10,7 @@
 mod common;
 
 use vkdr::raster::reference::{self, ReferenceGbuffer};
-use vkdr::raster::{GbufferData, Rasterizer, View};
+use vkdr::raster::{GbufferData, Outputs, Rasterizer, View};
 use vkdr::{Camera, Mesh, Pose};
 
 const BARY_TOLERANCE: f64 = 1e-4;
@@ -47,8 +47,9 @@ fn compare(gpu: &GbufferData, layer: usize, expected: &ReferenceGbuffer, margin:
             }
             seen.covered += 1;
             let b = expected.bary[k];
+            let bary = gpu.bary.as_ref().expect("rendered with barycentrics");
             for c in 0..2 {
-                let got = gpu.bary[[layer, i, j, c]] as f64;
+                let got = bary[[layer, i, j, c]] as f64;
                 assert!(
                     (got - b[c]).abs() <= BARY_TOLERANCE,
                     "view {layer} pixel ({i}, {j}): barycentric {c} is {got}, reference {}",
@@ -73,7 +74,9 @@ fn margin(ctx: &vkdr::gpu::Context) -> f64 {
 fn check_views(mesh: &Mesh, views: &[View]) -> Vec<Compared> {
     let ctx = common::context();
     let rasterizer = Rasterizer::new(&ctx).expect("rasterizer");
-    let gpu = rasterizer.render(&ctx, mesh, views, true).expect("render");
+    let gpu = rasterizer
+        .render(&ctx, mesh, views, Outputs::IdsBaryDepth)
+        .expect("render");
     let seen = views
         .iter()
         .enumerate()
@@ -208,7 +211,7 @@ fn overlapping_triangles_nearer_wins() {
         let ctx = common::context();
         let gpu = Rasterizer::new(&ctx)
             .unwrap()
-            .render(&ctx, &mesh, &[view], false)
+            .render(&ctx, &mesh, &[view], Outputs::Ids)
             .unwrap();
         assert_eq!(gpu.ids[[0, 48, 48]], near_id);
         common::assert_no_validation_errors(&ctx);
@@ -240,7 +243,7 @@ fn more_than_2_pow_24_triangles_have_exact_ids() {
     let ctx = common::context();
     let gpu = Rasterizer::new(&ctx)
         .unwrap()
-        .render(&ctx, &mesh, &[View { camera, pose }], false)
+        .render(&ctx, &mesh, &[View { camera, pose }], Outputs::Ids)
         .unwrap();
     let above = gpu
         .ids
@@ -289,7 +292,9 @@ fn mismatched_camera_size_is_an_error() {
             pose: Pose::at([0.0, 0.0, 0.5]),
         },
     ];
-    let err = rasterizer.render(&ctx, &mesh, &views, false).unwrap_err();
+    let err = rasterizer
+        .render(&ctx, &mesh, &views, Outputs::Ids)
+        .unwrap_err();
     assert!(err.to_string().contains("does not match"), "{err}");
     common::assert_no_validation_errors(&ctx);
 }

@@ -1,3 +1,5 @@
+#ifndef EDGES_GLSL
+#define EDGES_GLSL
 // 2D homogeneous edge functions of clip-space triangles (x, y, w per corner) and their
 // derivatives. For the pixel p in NDC, a_k(p) = c_k.xy - p c_k.w and the edge function of
 // the edge (i, j) is e(p) = cross(a_i, a_j) = L . (p, 1) with L = c_i x c_j. The
@@ -28,3 +30,5 @@ void edge_function_backward(vec3 ci, vec3 cj, vec2 p, float g, inout vec3 gi, in
     gi += vec3(g_ai, -dot(g_ai, p));
     gj += vec3(g_aj, -dot(g_aj, p));
 }
+
+#endif  // EDGES_GLSL

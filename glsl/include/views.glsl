@@ -1,3 +1,5 @@
+#ifndef VIEWS_GLSL
+#define VIEWS_GLSL
 // Per-view camera data as stored in the views buffer (same layout as the raster push
 // constants in camera.glsl): object-to-camera pose, intrinsics, image size, near plane.
 
@@ -17,3 +19,5 @@ vec2 clip_shift(ViewData v) { return 2.0 * v.intrinsics.zw / v.size - 1.0; }
 vec4 view_camera_to_clip(ViewData v, vec3 c) {
     return vec4(clip_scale(v) * c.xy + clip_shift(v) * c.z, v.near, c.z);
 }
+
+#endif  // VIEWS_GLSL

@@ -18,6 +18,7 @@ use crate::mesh::Mesh;
 
 const GBUFFER_VERT: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/gbuffer.vert.spv"));
 const GBUFFER_FRAG: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/gbuffer.frag.spv"));
+const GBUFFER_IDS_FRAG: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/gbuffer_ids.frag.spv"));
 const GBUFFER_DEPTH_FRAG: &[u8] =
     include_bytes!(concat!(env!("OUT_DIR"), "/gbuffer_depth.frag.spv"));
 const SHADED_VERT: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/shaded.vert.spv"));
@@ -183,66 +184,59 @@ impl MeshBuffers {
     }
 }
 
+/// Which G-buffer outputs a pass writes (besides the depth test): only what the consumer
+/// reads is rendered.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Outputs {
+    /// Triangle ids only (what the differentiable passes read).
+    Ids,
+    /// Ids and barycentrics.
+    IdsBary,
+    /// Ids, barycentrics and camera-space depth.
+    IdsBaryDepth,
+}
+
 /// The G-buffer images, one layer per view: ids (`R32_UINT`, triangle id + 1, 0 =
-/// background), barycentrics (`RG32_SFLOAT`, weights of corners 0 and 1), optionally
+/// background), optionally barycentrics (`RG32_SFLOAT`, weights of corners 0 and 1) and
 /// camera-space depth (`R32_SFLOAT`, 0 = background), and the depth-test buffer.
 pub struct Gbuffer {
     pub ids: Image,
-    pub bary: Image,
+    pub bary: Option<Image>,
     pub depth: Option<Image>,
     depth_test: Image,
+    outputs: Outputs,
 }
 
 impl Gbuffer {
-    /// Images for `views` views of `width` x `height`; `with_depth` adds the depth output.
+    /// Images for `views` views of `width` x `height`.
     pub fn new(
         ctx: &Context,
         width: u32,
         height: u32,
         views: u32,
-        with_depth: bool,
+        outputs: Outputs,
     ) -> Result<Self> {
+        let image = |name, format| {
+            Image::new(
+                ctx,
+                name,
+                format,
+                width,
+                height,
+                views,
+                format != Format::D32Float,
+            )
+        };
         Ok(Self {
-            ids: Image::new(
-                ctx,
-                "gbuffer ids",
-                Format::R32Uint,
-                width,
-                height,
-                views,
-                true,
-            )?,
-            bary: Image::new(
-                ctx,
-                "gbuffer bary",
-                Format::Rg32Float,
-                width,
-                height,
-                views,
-                true,
-            )?,
-            depth: with_depth
-                .then(|| {
-                    Image::new(
-                        ctx,
-                        "gbuffer depth",
-                        Format::R32Float,
-                        width,
-                        height,
-                        views,
-                        true,
-                    )
-                })
+            ids: image("gbuffer ids", Format::R32Uint)?,
+            bary: (outputs != Outputs::Ids)
+                .then(|| image("gbuffer bary", Format::Rg32Float))
                 .transpose()?,
-            depth_test: Image::new(
-                ctx,
-                "gbuffer depth test",
-                Format::D32Float,
-                width,
-                height,
-                views,
-                false,
-            )?,
+            depth: (outputs == Outputs::IdsBaryDepth)
+                .then(|| image("gbuffer depth", Format::R32Float))
+                .transpose()?,
+            depth_test: image("gbuffer depth test", Format::D32Float)?,
+            outputs,
         })
     }
 
@@ -258,9 +252,14 @@ impl Gbuffer {
         self.ids.layers()
     }
 
-    fn outputs(&self) -> Vec<&Image> {
-        [&self.ids, &self.bary]
-            .into_iter()
+    pub fn outputs(&self) -> Outputs {
+        self.outputs
+    }
+
+    /// The output images (not the depth test), in attachment order.
+    pub fn images(&self) -> Vec<&Image> {
+        std::iter::once(&self.ids)
+            .chain(self.bary.as_ref())
             .chain(self.depth.as_ref())
             .collect()
     }
@@ -268,12 +267,13 @@ impl Gbuffer {
     /// Records copies of the G-buffer (left in the attachment state by
     /// [`Rasterizer::draw`]) into `readback`, which must be [`GbufferReadback::new`]'s.
     pub fn record_readback(&self, rec: &mut Recorder, readback: &GbufferReadback) -> Result<()> {
-        let outputs = self.outputs();
-        rec.transition(&outputs, ImageState::Attachment, ImageState::TransferSrc);
-        rec.copy_image_to_buffer(&self.ids, &readback.ids)?;
-        rec.copy_image_to_buffer(&self.bary, &readback.bary)?;
-        if let (Some(depth), Some(buffer)) = (&self.depth, &readback.depth) {
-            rec.copy_image_to_buffer(depth, buffer)?;
+        rec.transition(
+            &self.images(),
+            ImageState::Attachment,
+            ImageState::TransferSrc,
+        );
+        for (image, buffer) in self.images().into_iter().zip(readback.buffers()) {
+            rec.copy_image_to_buffer(image, buffer)?;
         }
         Ok(())
     }
@@ -282,7 +282,7 @@ impl Gbuffer {
 /// Host-visible buffers that receive a G-buffer.
 pub struct GbufferReadback {
     ids: Buffer,
-    bary: Buffer,
+    bary: Option<Buffer>,
     depth: Option<Buffer>,
     shape: (usize, usize, usize),
 }
@@ -293,7 +293,11 @@ impl GbufferReadback {
             |name, image: &Image| Buffer::new(ctx, name, image.byte_size(), BufferKind::Readback);
         Ok(Self {
             ids: buffer("readback ids", &gbuffer.ids)?,
-            bary: buffer("readback bary", &gbuffer.bary)?,
+            bary: gbuffer
+                .bary
+                .as_ref()
+                .map(|b| buffer("readback bary", b))
+                .transpose()?,
             depth: gbuffer
                 .depth
                 .as_ref()
@@ -307,24 +311,36 @@ impl GbufferReadback {
         })
     }
 
+    fn buffers(&self) -> Vec<&Buffer> {
+        std::iter::once(&self.ids)
+            .chain(self.bary.as_ref())
+            .chain(self.depth.as_ref())
+            .collect()
+    }
+
     /// The G-buffer on the host (after the recording that filled it has completed).
     pub fn read(&mut self) -> Result<GbufferData> {
         let (v, h, w) = self.shape;
         let n = v * h * w;
-        let ids = self.ids.read_range::<u32>(0, n)?;
-        let bary = self.bary.read_range::<f32>(0, 2 * n)?;
-        let depth = self
-            .depth
-            .as_mut()
-            .map(|d| d.read_range::<f32>(0, n))
-            .transpose()?;
         let shape_err = |e: ndarray::ShapeError| Error::InvalidInput(e.to_string());
+        let ids = self.ids.read_range::<u32>(0, n)?;
+        let bary = match self.bary.as_mut() {
+            Some(b) => Some(
+                Array4::from_shape_vec((v, h, w, 2), b.read_range::<f32>(0, 2 * n)?)
+                    .map_err(shape_err)?,
+            ),
+            None => None,
+        };
+        let depth = match self.depth.as_mut() {
+            Some(d) => Some(
+                Array3::from_shape_vec((v, h, w), d.read_range::<f32>(0, n)?).map_err(shape_err)?,
+            ),
+            None => None,
+        };
         Ok(GbufferData {
             ids: Array3::from_shape_vec((v, h, w), ids).map_err(shape_err)?,
-            bary: Array4::from_shape_vec((v, h, w, 2), bary).map_err(shape_err)?,
-            depth: depth
-                .map(|d| Array3::from_shape_vec((v, h, w), d).map_err(shape_err))
-                .transpose()?,
+            bary,
+            depth,
         })
     }
 }
@@ -335,13 +351,14 @@ pub struct GbufferData {
     /// Triangle id + 1, 0 where no triangle covers the pixel centre.
     pub ids: Array3<u32>,
     /// Barycentric weights of corners 0 and 1 (corner 2: 1 - u - v); 0 on background.
-    pub bary: Array4<f32>,
+    pub bary: Option<Array4<f32>>,
     /// Camera-space z in metres, 0 on background (when asked for).
     pub depth: Option<Array3<f32>>,
 }
 
 /// The forward rasterizer's pipelines.
 pub struct Rasterizer {
+    gbuffer_ids: GraphicsPipeline,
     gbuffer: GraphicsPipeline,
     gbuffer_with_depth: GraphicsPipeline,
     shaded: GraphicsPipeline,
@@ -366,6 +383,7 @@ impl Rasterizer {
                 },
             )
         };
+        let gbuffer_ids = gbuffer_pipeline("gbuffer ids", GBUFFER_IDS_FRAG, &[Format::R32Uint])?;
         let gbuffer = gbuffer_pipeline(
             "gbuffer",
             GBUFFER_FRAG,
@@ -394,6 +412,7 @@ impl Rasterizer {
         let per_chunk = info.max_storage_buffer_range as u64 / 12;
         let chunk_triangles = ((per_chunk / 256) * 256).clamp(256, u32::MAX as u64 / 3) as u32;
         Ok(Self {
+            gbuffer_ids,
             gbuffer,
             gbuffer_with_depth,
             shaded,
@@ -423,22 +442,20 @@ impl Rasterizer {
                 target.height()
             )));
         }
-        let mut images = target.outputs();
+        let mut images = target.images();
         images.push(&target.depth_test);
         rec.transition(&images, ImageState::Undefined, ImageState::Attachment);
-        let pipeline = if target.depth.is_some() {
-            &self.gbuffer_with_depth
-        } else {
-            &self.gbuffer
+        let pipeline = match target.outputs {
+            Outputs::Ids => &self.gbuffer_ids,
+            Outputs::IdsBary => &self.gbuffer,
+            Outputs::IdsBaryDepth => &self.gbuffer_with_depth,
         };
         for layer in 0..views.count {
-            let mut colors = vec![
-                (&target.ids, layer, [0.0; 4]),
-                (&target.bary, layer, [0.0; 4]),
-            ];
-            if let Some(depth) = &target.depth {
-                colors.push((depth, layer, [0.0; 4]));
-            }
+            let colors: Vec<_> = target
+                .images()
+                .into_iter()
+                .map(|image| (image, layer, [0.0; 4]))
+                .collect();
             rec.begin_rendering(&RenderTarget {
                 colors: &colors,
                 depth: Some((&target.depth_test, layer, 0.0)),
@@ -530,7 +547,7 @@ impl Rasterizer {
         ctx: &Context,
         mesh: &Mesh,
         views: &[View],
-        with_depth: bool,
+        outputs: Outputs,
     ) -> Result<GbufferData> {
         let buffers = MeshBuffers::new(ctx, mesh)?;
         let view_buffers = ViewBuffers::new(ctx, views)?;
@@ -539,7 +556,7 @@ impl Rasterizer {
             view_buffers.width,
             view_buffers.height,
             views.len() as u32,
-            with_depth,
+            outputs,
         )?;
         let mut readback = GbufferReadback::new(ctx, &target)?;
         let mut rec = Recorder::new(ctx)?;

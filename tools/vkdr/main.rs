@@ -12,7 +12,7 @@ use ndarray::s;
 use vkdr::camera::{parse_numbers, parse_size};
 use vkdr::gpu::Context;
 use vkdr::io::{write_npy, write_png};
-use vkdr::raster::{Rasterizer, View};
+use vkdr::raster::{Outputs, Rasterizer, View};
 use vkdr::{Camera, Mesh, Pose};
 
 #[derive(Parser)]
@@ -167,12 +167,16 @@ fn write_views(
     out: &Path,
     raw: bool,
 ) -> Result<Vec<String>> {
-    let gbuffer = rasterizer.render(ctx, mesh, views, true)?;
+    let gbuffer = rasterizer.render(ctx, mesh, views, Outputs::IdsBaryDepth)?;
     let colour = rasterizer.render_shaded(ctx, mesh, views)?;
     let depth = gbuffer
         .depth
         .as_ref()
         .context("G-buffer rendered without depth")?;
+    let bary_all = gbuffer
+        .bary
+        .as_ref()
+        .context("G-buffer rendered without barycentrics")?;
     let mut written = Vec::new();
     for k in 0..views.len() {
         let prefix = if views.len() > 1 {
@@ -181,7 +185,7 @@ fn write_views(
             String::new()
         };
         let ids = gbuffer.ids.slice(s![k, .., ..]);
-        let bary = gbuffer.bary.slice(s![k, .., .., ..]);
+        let bary = bary_all.slice(s![k, .., .., ..]);
         let z = depth.slice(s![k, .., ..]);
         let mut save = |name: &str, picture: image::DynamicImage| -> Result<()> {
             let path = out.join(format!("{prefix}{name}"));

@@ -1,0 +1,97 @@
+#version 460
+// Backward of antialias.comp: dL/dA per pixel (loss_gradient) pushed to the camera-space
+// vertex positions of every view (atomically, grad_camera[view][vertex]) through
+//   - the silhouette crossings: each pair is handled by its left / upper pixel, and
+//     d alpha / d(edge function) chains to the edge's two clip-space vertices;
+//   - with attributes, the interpolation: dL/dc per pixel (own term plus the pair terms
+//     that moved colour into or out of it) to the attributes (grad_attributes) and, via
+//     the exact barycentrics, to the triangle's three clip-space vertices.
+#include "diff_pass.glsl"
+
+layout(set = 0, binding = 10, std430) buffer GradCamera { float grad_camera[]; };        // [view][vertex][3]
+layout(set = 0, binding = 11, std430) buffer GradAttributes { float grad_attributes[]; };  // [vertex][channel]
+
+// d clip / d camera is (sx, sy, ox, oy): x_clip = sx x + ox z, y_clip = sy y + oy z, w = z.
+void add_clip_gradient(ViewData vd, uint view, uint v, vec3 g_clip) {
+    vec2 s = clip_scale(vd);
+    vec2 o = clip_shift(vd);
+    vec3 g = vec3(s.x * g_clip.x, s.y * g_clip.y, o.x * g_clip.x + o.y * g_clip.y + g_clip.z);
+    uint at = 3u * (view * pc.vertex_count + v);
+    atomicAdd(grad_camera[at], g.x);
+    atomicAdd(grad_camera[at + 1u], g.y);
+    atomicAdd(grad_camera[at + 2u], g.z);
+}
+
+void crossing_backward(ViewData vd, uint view, Pair pair) {
+    ivec2 affected = pair.affects_g ? pair.g : pair.f;
+    vec4 ga = loss_gradient(pixel_index(affected, view, vd), view, vd);
+    vec4 cf = colour_at(vd, pair.f, id_at(pair.f, view));
+    vec4 cg = colour_at(vd, pair.g, id_at(pair.g, view));
+    float g_alpha = dot(ga, cf - cg);
+    if (g_alpha == 0.0) return;
+    Crossing c = pair.crossing;
+    float d = c.ef - c.eb;
+    float g_ef = g_alpha * -c.eb / (d * d);
+    float g_eb = g_alpha * c.ef / (d * d);
+    Triangle tri = load_triangle(vd, c.triangle);
+    int i = (c.edge + 1) % 3;
+    int j = (c.edge + 2) % 3;
+    vec3 gi = vec3(0.0);
+    vec3 gj = vec3(0.0);
+    vec2 pf = pixel_ndc(pair.f, vd);
+    vec2 pb = pixel_ndc(pair.g, vd);
+    edge_function_backward(tri.clip[i], tri.clip[j], pf, g_ef, gi, gj);
+    edge_function_backward(tri.clip[i], tri.clip[j], pb, g_eb, gi, gj);
+    add_clip_gradient(vd, view, tri.v[i], gi);
+    add_clip_gradient(vd, view, tri.v[j], gj);
+}
+
+void main() {
+    uint view = gl_GlobalInvocationID.z;
+    ViewData vd = views[view];
+    ivec2 size = ivec2(vd.size);
+    ivec2 p = ivec2(gl_GlobalInvocationID.xy);
+    if (any(greaterThanEqual(p, size))) return;
+
+    const ivec2 steps[4] = ivec2[4](ivec2(1, 0), ivec2(0, 1), ivec2(-1, 0), ivec2(0, -1));
+    uint id = id_at(p, view);
+    bool interpolated = pc.channels > 0u && id != 0u;
+    uint index = pixel_index(p, view, vd);
+    vec4 g_colour = interpolated ? loss_gradient(index, view, vd) : vec4(0.0);
+    for (int s = 0; s < 4; ++s) {
+        ivec2 q = p + steps[s];
+        if (any(lessThan(q, ivec2(0))) || any(greaterThanEqual(q, size))) continue;
+        bool forward = s < 2;
+        if (!forward && !interpolated) continue;
+        Pair pair = forward ? make_pair(vd, view, p, q, s == 0) : make_pair(vd, view, q, p, s == 2);
+        if (!pair.valid) continue;
+        if (forward) crossing_backward(vd, view, pair);
+        if (interpolated) {
+            // out[a] += w (c[o] - c[a]): d/dc[a] = -w, d/dc[o] = +w.
+            ivec2 affected = pair.affects_g ? pair.g : pair.f;
+            vec4 ga = loss_gradient(pixel_index(affected, view, vd), view, vd);
+            g_colour += (affected == p ? -pair.weight : pair.weight) * ga;
+        }
+    }
+    if (!interpolated) return;
+
+    Triangle tri = load_triangle(vd, id - 1u);
+    vec2 np = pixel_ndc(p, vd);
+    vec3 e = edge_functions(tri.clip[0], tri.clip[1], tri.clip[2], np);
+    float sum = e.x + e.y + e.z;
+    vec3 b = e / sum;
+    vec3 g_b = vec3(0.0);
+    for (int k = 0; k < 3; ++k) {
+        for (uint ch = 0u; ch < pc.channels; ++ch) {
+            atomicAdd(grad_attributes[tri.v[k] * pc.channels + ch], b[k] * g_colour[ch]);
+            g_b[k] += g_colour[ch] * attributes[tri.v[k] * pc.channels + ch];
+        }
+    }
+    // b = e / sum(e): dL/de_k = (dL/db_k - dot(b, dL/db)) / sum(e).
+    vec3 g_e = (g_b - dot(b, g_b)) / sum;
+    vec3 g_clip[3] = vec3[3](vec3(0.0), vec3(0.0), vec3(0.0));
+    edge_function_backward(tri.clip[1], tri.clip[2], np, g_e.x, g_clip[1], g_clip[2]);
+    edge_function_backward(tri.clip[2], tri.clip[0], np, g_e.y, g_clip[2], g_clip[0]);
+    edge_function_backward(tri.clip[0], tri.clip[1], np, g_e.z, g_clip[0], g_clip[1]);
+    for (int k = 0; k < 3; ++k) add_clip_gradient(vd, view, tri.v[k], g_clip[k]);
+}

@@ -1,0 +1,196 @@
+//! Image losses on the device and the observed images they compare against: mean squared
+//! error (of antialiased coverage, or of interpolated colour), soft IoU, and a
+//! signed-distance loss whose gradient reaches beyond the silhouette. The signed distance
+//! field of an observed mask is computed on the device by jump flooding.
+//! [`reference`] holds the float64 versions used by tests.
+
+pub mod reference;
+
+use std::path::Path;
+
+use bytemuck::{Pod, Zeroable};
+
+use crate::error::{Error, Result};
+use crate::gpu::{spirv, Binding, BindingKind, Buffer, BufferKind, ComputePipeline, Context, Recorder};
+
+const SEED: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/distance_seed.comp.spv"));
+const JUMP: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/distance_jump.comp.spv"));
+const FINAL: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/distance_final.comp.spv"));
+
+/// Which loss compares the rendered image A with the observed image O (N pixels per view;
+/// the total is the sum over views).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Loss {
+    /// sum (A - O)^2 / (N channels): of antialiased coverage against a mask, or of
+    /// antialiased interpolated colour against a colour image.
+    Mse,
+    /// 1 - sum A O / sum (A + O - A O) (coverage against a mask).
+    Iou,
+    /// sum A S / N, with S the signed distance in pixels to the observed mask's boundary
+    /// (negative inside): rendered coverage outside the mask costs its distance, inside
+    /// the mask it gains, so the silhouette is pulled towards the mask from afar.
+    Distance,
+}
+
+impl Loss {
+    pub(crate) fn code(self) -> u32 {
+        match self {
+            Loss::Mse => 0,
+            Loss::Iou => 1,
+            Loss::Distance => 2,
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Loss::Mse => "mse",
+            Loss::Iou => "iou",
+            Loss::Distance => "distance",
+        }
+    }
+}
+
+impl std::str::FromStr for Loss {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "mse" => Ok(Loss::Mse),
+            "iou" => Ok(Loss::Iou),
+            "distance" => Ok(Loss::Distance),
+            other => Err(Error::InvalidInput(format!("unknown loss '{other}' (mse, iou, distance)"))),
+        }
+    }
+}
+
+/// Reads a mask PNG: 1 where any channel is nonzero, else 0, row-major. A size other
+/// than `width` x `height` is an error (never a silent resize).
+pub fn load_mask(path: &Path, width: u32, height: u32) -> Result<Vec<f32>> {
+    let image = image::open(path).map_err(|e| Error::format(path, e.to_string()))?;
+    if (image.width(), image.height()) != (width, height) {
+        return Err(Error::format(
+            path,
+            format!(
+                "mask is {}x{} but --size is {width}x{height}",
+                image.width(),
+                image.height()
+            ),
+        ));
+    }
+    let rgba = image.to_rgba8();
+    Ok(rgba
+        .pixels()
+        .map(|p| if p.0.iter().any(|&c| c != 0) { 1.0 } else { 0.0 })
+        .collect())
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct DistanceConstants {
+    width: u32,
+    height: u32,
+    step: i32,
+}
+
+/// Jump-flooding pipelines for signed distance fields of masks.
+pub struct DistanceField {
+    seed: ComputePipeline,
+    jump: ComputePipeline,
+    finish: ComputePipeline,
+}
+
+impl DistanceField {
+    pub fn new(ctx: &Context) -> Result<Self> {
+        let constants = std::mem::size_of::<DistanceConstants>() as u32;
+        let pipeline = |name, code| {
+            let bindings: &[BindingKind] = if code == FINAL {
+                &[BindingKind::StorageBuffer; 3]
+            } else {
+                &[BindingKind::StorageBuffer; 2]
+            };
+            ComputePipeline::new(ctx, name, &spirv(code)?, bindings, constants)
+        };
+        Ok(Self {
+            seed: pipeline("distance seed", SEED)?,
+            jump: pipeline("distance jump", JUMP)?,
+            finish: pipeline("distance final", FINAL)?,
+        })
+    }
+
+    /// Records the signed distance field of `views` masks of `width` x `height` (float,
+    /// [view][y][x], nonzero = object) into `distance`, using two scratch buffers of
+    /// `scratch_bytes` each.
+    pub fn record(
+        &self,
+        rec: &mut Recorder,
+        masks: &Buffer,
+        scratch: [&Buffer; 2],
+        distance: &Buffer,
+        (width, height, views): (u32, u32, u32),
+    ) -> Result<()> {
+        let needed = Self::scratch_bytes(width, height, views);
+        if scratch.iter().any(|b| b.size() < needed) || distance.size() < needed / 2 {
+            return Err(Error::InvalidInput("distance field buffers are too small".into()));
+        }
+        let groups = (width.div_ceil(8), height.div_ceil(8));
+        let mut constants = DistanceConstants { width, height, step: 0 };
+        rec.bind_compute(&self.seed);
+        rec.push_compute_bindings(&self.seed, &[Binding::buffer(masks), Binding::buffer(scratch[0])]);
+        rec.compute_constants(&self.seed, &constants);
+        rec.dispatch(groups.0, groups.1, 2 * views);
+        rec.memory_barrier();
+
+        let mut steps = Vec::new();
+        let mut step = width.max(height).next_power_of_two() / 2;
+        while step >= 1 {
+            steps.push(step);
+            step /= 2;
+        }
+        steps.push(1); // 1+JFA: one more pass at step 1 mends most of jump flooding's errors
+        rec.bind_compute(&self.jump);
+        let mut current = 0;
+        for step in steps {
+            constants.step = step as i32;
+            rec.push_compute_bindings(
+                &self.jump,
+                &[Binding::buffer(scratch[current]), Binding::buffer(scratch[1 - current])],
+            );
+            rec.compute_constants(&self.jump, &constants);
+            rec.dispatch(groups.0, groups.1, 2 * views);
+            rec.memory_barrier();
+            current = 1 - current;
+        }
+        rec.bind_compute(&self.finish);
+        rec.push_compute_bindings(
+            &self.finish,
+            &[Binding::buffer(masks), Binding::buffer(scratch[current]), Binding::buffer(distance)],
+        );
+        rec.compute_constants(&self.finish, &constants);
+        rec.dispatch(groups.0, groups.1, views);
+        rec.memory_barrier();
+        Ok(())
+    }
+
+    /// Bytes of each scratch buffer for `views` masks of `width` x `height`.
+    pub fn scratch_bytes(width: u32, height: u32, views: u32) -> u64 {
+        2 * width as u64 * height as u64 * views as u64 * 4
+    }
+
+    /// One-shot convenience: the signed distance field of one mask (row-major).
+    pub fn compute(&self, ctx: &Context, mask: &[f32], width: u32, height: u32) -> Result<Vec<f32>> {
+        if mask.len() != (width * height) as usize {
+            return Err(Error::InvalidInput(format!(
+                "mask of {} values is not {width}x{height}",
+                mask.len()
+            )));
+        }
+        let masks = Buffer::from_slice(ctx, "masks", mask)?;
+        let bytes = Self::scratch_bytes(width, height, 1);
+        let a = Buffer::new(ctx, "jump flooding a", bytes, BufferKind::Device)?;
+        let b = Buffer::new(ctx, "jump flooding b", bytes, BufferKind::Device)?;
+        let mut distance = Buffer::new(ctx, "distance field", bytes / 2, BufferKind::Device)?;
+        let mut rec = Recorder::new(ctx)?;
+        self.record(&mut rec, &masks, [&a, &b], &distance, (width, height, 1))?;
+        ctx.submit_and_wait(rec)?;
+        distance.read_range(0, mask.len())
+    }
+}
