@@ -5,9 +5,11 @@
 #![warn(unsafe_op_in_unsafe_fn)]
 
 pub mod camera;
+pub mod diff;
 pub mod error;
 pub mod gpu;
 pub mod io;
+pub mod loss;
 pub mod mesh;
 pub mod raster;
 

@@ -1,0 +1,357 @@
+//! Exact gradients through the rasterizer. From the G-buffer's triangle ids, compute
+//! shaders shade the compared image (antialiased coverage, or per-vertex attributes
+//! interpolated with exact perspective-correct barycentrics), antialias it analytically
+//! across silhouette edges between adjacent pixels (the idea of nvdiffrast's `antialias`,
+//! with mesh topology to find silhouette edges and a walk across triangles smaller than a
+//! pixel), evaluate the loss, and push dL/dpixel back to every vertex (float `atomicAdd`)
+//! and to each view's pose (a reduction on the device).
+//!
+//! [`reference`] is the float64 model the tests differentiate by central differences.
+
+pub mod reference;
+
+use std::collections::HashMap;
+
+use bytemuck::{Pod, Zeroable};
+
+use crate::error::{Error, Result};
+use crate::gpu::{
+    spirv, Binding, BindingKind, Buffer, BufferKind, ComputePipeline, Context, ImageState, Recorder,
+};
+use crate::loss::{DistanceField, Loss};
+use crate::mesh::Mesh;
+use crate::raster::{Gbuffer, MeshBuffers, Outputs, Rasterizer, View, ViewBuffers};
+
+const ANTIALIAS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/antialias.comp.spv"));
+const BACKWARD: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/antialias_backward.comp.spv"));
+const FINALIZE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/loss_finalize.comp.spv"));
+const POSE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/pose_gradient.comp.spv"));
+
+/// Marks an edge without exactly one neighbouring triangle.
+pub const NO_NEIGHBOUR: u32 = u32::MAX;
+
+/// For each triangle t and corner k, the triangle across the edge opposite corner k
+/// (`neighbours[3 t + k]`), or [`NO_NEIGHBOUR`] for a boundary edge or one shared by more
+/// than two triangles. Edges are matched by vertex index (welded meshes).
+pub fn neighbours(mesh: &Mesh) -> Vec<u32> {
+    let triangles = mesh.triangles();
+    let mut edges: HashMap<(u32, u32), Vec<(u32, usize)>> = HashMap::with_capacity(triangles.len() * 3 / 2);
+    for (t, tri) in triangles.iter().enumerate() {
+        for k in 0..3 {
+            let (a, b) = (tri[(k + 1) % 3], tri[(k + 2) % 3]);
+            edges.entry((a.min(b), a.max(b))).or_default().push((t as u32, k));
+        }
+    }
+    let mut out = vec![NO_NEIGHBOUR; triangles.len() * 3];
+    for sharing in edges.values() {
+        if let [(t0, k0), (t1, k1)] = sharing[..] {
+            out[3 * t0 as usize + k0] = t1;
+            out[3 * t1 as usize + k1] = t0;
+        }
+    }
+    out
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct PassConstants {
+    channels: u32,
+    loss: u32,
+    vertex_count: u32,
+    pad: u32,
+}
+
+/// The pipelines of the differentiable renderer (create once, use for many scenes).
+pub struct DiffRenderer {
+    rasterizer: Rasterizer,
+    antialias: ComputePipeline,
+    backward: ComputePipeline,
+    finalize: ComputePipeline,
+    pose: ComputePipeline,
+    distance: DistanceField,
+}
+
+impl DiffRenderer {
+    pub fn new(ctx: &Context) -> Result<Self> {
+        let pass_bytes = std::mem::size_of::<PassConstants>() as u32;
+        let mut bindings = vec![BindingKind::StorageBuffer; 12];
+        bindings[5] = BindingKind::StorageImage;
+        Ok(Self {
+            rasterizer: Rasterizer::new(ctx)?,
+            antialias: ComputePipeline::new(ctx, "antialias", &spirv(ANTIALIAS)?, &bindings[..10], pass_bytes)?,
+            backward: ComputePipeline::new(ctx, "antialias backward", &spirv(BACKWARD)?, &bindings, pass_bytes)?,
+            finalize: ComputePipeline::new(ctx, "loss finalize", &spirv(FINALIZE)?, &[BindingKind::StorageBuffer], 4)?,
+            pose: ComputePipeline::new(ctx, "pose gradient", &spirv(POSE)?, &[BindingKind::StorageBuffer; 5], 4)?,
+            distance: DistanceField::new(ctx)?,
+        })
+    }
+
+    pub fn rasterizer(&self) -> &Rasterizer {
+        &self.rasterizer
+    }
+}
+
+/// What a scene compares: the observed images of every view and how.
+pub struct SceneDesc<'a> {
+    pub mesh: &'a Mesh,
+    pub views: &'a [View],
+    pub loss: Loss,
+    /// Observed images, [view][row][column][channel] with `channels` = attribute channels
+    /// (1 for a mask: nonzero = object).
+    pub observed: &'a [f32],
+    /// Per-vertex attributes to interpolate ([vertex][channel], 1 to 4 channels), or
+    /// `None` to compare antialiased coverage with a mask.
+    pub attributes: Option<(&'a [f32], u32)>,
+}
+
+/// Device buffers of one differentiable scene: mesh, views, G-buffer, observation and
+/// gradient accumulators. [`Scene::record`] records one forward and backward pass.
+pub struct Scene {
+    mesh: MeshBuffers,
+    views: ViewBuffers,
+    gbuffer: Gbuffer,
+    neighbours: Buffer,
+    attributes: Buffer,
+    observed: Buffer,
+    distance: Buffer,
+    distance_scratch: Option<[Buffer; 2]>,
+    antialiased: Buffer,
+    stats: Buffer,
+    grad_camera: Buffer,
+    grad_attributes: Buffer,
+    grad_object: Buffer,
+    grad_pose: Buffer,
+    ids_readback: Buffer,
+    loss: Loss,
+    channels: u32,
+}
+
+/// Results of one evaluation, read back to the host.
+#[derive(Clone, Debug)]
+pub struct Evaluation {
+    /// Loss of each view (the total is their sum).
+    pub loss: Vec<f32>,
+    /// dL/d(object-space vertex position), summed over views, in the mesh's vertex order.
+    pub vertex_gradient: Vec<[f32; 3]>,
+    /// Per view: dL/dt (camera frame) then dL/dd for a rotation increment d applied on the
+    /// left, x_camera = exp([d]x) R x + t.
+    pub pose_gradient: Vec<[f32; 6]>,
+    /// dL/d(attribute), [vertex][channel] (empty without attributes).
+    pub attribute_gradient: Vec<f32>,
+    /// The antialiased compared image, [view][row][column][channel].
+    pub antialiased: Vec<f32>,
+    /// Triangle id + 1 per pixel, [view][row][column].
+    pub ids: Vec<u32>,
+}
+
+impl Scene {
+    pub fn new(ctx: &Context, desc: &SceneDesc) -> Result<Self> {
+        let mesh = MeshBuffers::new(ctx, desc.mesh)?;
+        let views = ViewBuffers::new(ctx, desc.views)?;
+        let (w, h, n) = (views.width(), views.height(), views.count());
+        let pixels = w as u64 * h as u64 * n as u64;
+        let (attributes, channels) = match desc.attributes {
+            None => (vec![0.0f32], 0),
+            Some((values, channels)) => {
+                if !(1..=4).contains(&channels) || values.len() != desc.mesh.vertex_count() * channels as usize {
+                    return Err(Error::InvalidInput(format!(
+                        "{} attribute values for {} vertices x {channels} channels (1 to 4)",
+                        values.len(),
+                        desc.mesh.vertex_count()
+                    )));
+                }
+                if desc.loss != Loss::Mse {
+                    return Err(Error::InvalidInput(format!(
+                        "the {} loss compares masks; use mse with attributes",
+                        desc.loss.name()
+                    )));
+                }
+                (values.to_vec(), channels)
+            }
+        };
+        let image_channels = channels.max(1) as u64;
+        if desc.observed.len() as u64 != pixels * image_channels {
+            return Err(Error::InvalidInput(format!(
+                "observed images hold {} values, expected {n} views x {w} x {h} x {image_channels}",
+                desc.observed.len()
+            )));
+        }
+        if desc.observed.iter().any(|v| !v.is_finite()) {
+            return Err(Error::InvalidInput("observed images contain NaN or Inf".into()));
+        }
+        let vertices = desc.mesh.vertex_count() as u64;
+        let device = |name, bytes| Buffer::new(ctx, name, bytes, BufferKind::Device);
+        let with_distance = desc.loss == Loss::Distance;
+        Ok(Self {
+            gbuffer: Gbuffer::new(ctx, w, h, n, Outputs::Ids)?,
+            neighbours: Buffer::from_slice(ctx, "neighbours", &neighbours(desc.mesh))?,
+            attributes: Buffer::from_slice(ctx, "attributes", &attributes)?,
+            observed: Buffer::from_slice(ctx, "observed", desc.observed)?,
+            distance: device("distance field", if with_distance { pixels * 4 } else { 4 })?,
+            distance_scratch: if with_distance {
+                let bytes = DistanceField::scratch_bytes(w, h, n);
+                Some([device("jump flooding a", bytes)?, device("jump flooding b", bytes)?])
+            } else {
+                None
+            },
+            antialiased: device("antialiased", pixels * image_channels * 4)?,
+            stats: device("loss stats", n as u64 * 16)?,
+            grad_camera: device("camera gradients", n as u64 * vertices * 12)?,
+            grad_attributes: device("attribute gradients", vertices * channels as u64 * 4)?,
+            grad_object: device("vertex gradients", vertices * 12)?,
+            grad_pose: device("pose gradients", n as u64 * 24)?,
+            ids_readback: Buffer::new(ctx, "readback ids", pixels * 4, BufferKind::Readback)?,
+            mesh,
+            views,
+            loss: desc.loss,
+            channels,
+        })
+    }
+
+    /// The mesh on the device (its positions may be rewritten by compute passes).
+    pub fn mesh(&self) -> &MeshBuffers {
+        &self.mesh
+    }
+
+    /// The views on the device (poses may be rewritten by compute passes).
+    pub fn views(&self) -> &ViewBuffers {
+        &self.views
+    }
+
+    /// Replaces the views' cameras and poses.
+    pub fn set_views(&mut self, views: &[View]) -> Result<()> {
+        self.views.set(views)
+    }
+
+    /// Records what depends only on the observation (the distance field); run once.
+    pub fn record_prepare(&self, renderer: &DiffRenderer, rec: &mut Recorder) -> Result<()> {
+        if let Some([a, b]) = &self.distance_scratch {
+            let shape = (self.views.width(), self.views.height(), self.views.count());
+            renderer.distance.record(rec, &self.observed, [a, b], &self.distance, shape)?;
+        }
+        Ok(())
+    }
+
+    /// Records one evaluation: rasterize, shade, antialias, loss, backward, pose
+    /// reduction. Results are in the scene's buffers once the submission completes.
+    pub fn record(&self, renderer: &DiffRenderer, rec: &mut Recorder) -> Result<()> {
+        for buffer in [&self.stats, &self.grad_camera, &self.grad_attributes, &self.grad_object, &self.grad_pose] {
+            rec.fill_buffer(buffer, 0);
+        }
+        renderer.rasterizer.draw(rec, &self.mesh, &self.views, &self.gbuffer)?;
+        rec.transition(&[&self.gbuffer.ids], ImageState::Attachment, ImageState::Storage);
+        rec.memory_barrier();
+
+        let constants = PassConstants {
+            channels: self.channels,
+            loss: self.loss.code(),
+            vertex_count: self.mesh.vertex_count(),
+            pad: 0,
+        };
+        let bindings = [
+            Binding::buffer(self.mesh.positions()),
+            Binding::buffer(self.mesh.triangles()),
+            Binding::buffer(&self.neighbours),
+            Binding::buffer(self.views.views()),
+            Binding::buffer(&self.attributes),
+            Binding::Image(&self.gbuffer.ids),
+            Binding::buffer(&self.observed),
+            Binding::buffer(&self.distance),
+            Binding::buffer(&self.antialiased),
+            Binding::buffer(&self.stats),
+            Binding::buffer(&self.grad_camera),
+            Binding::buffer(&self.grad_attributes),
+        ];
+        let (w, h, n) = (self.views.width(), self.views.height(), self.views.count());
+        rec.bind_compute(&renderer.antialias);
+        rec.push_compute_bindings(&renderer.antialias, &bindings[..10]);
+        rec.compute_constants(&renderer.antialias, &constants);
+        rec.dispatch(w.div_ceil(8), h.div_ceil(8), n);
+        rec.memory_barrier();
+
+        rec.bind_compute(&renderer.finalize);
+        rec.push_compute_bindings(&renderer.finalize, &[Binding::buffer(&self.stats)]);
+        rec.compute_constants(&renderer.finalize, &self.loss.code());
+        rec.dispatch(n, 1, 1);
+        rec.memory_barrier();
+
+        rec.bind_compute(&renderer.backward);
+        rec.push_compute_bindings(&renderer.backward, &bindings);
+        rec.compute_constants(&renderer.backward, &constants);
+        rec.dispatch(w.div_ceil(8), h.div_ceil(8), n);
+        rec.memory_barrier();
+
+        rec.bind_compute(&renderer.pose);
+        rec.push_compute_bindings(
+            &renderer.pose,
+            &[
+                Binding::buffer(self.mesh.positions()),
+                Binding::buffer(self.views.views()),
+                Binding::buffer(&self.grad_camera),
+                Binding::buffer(&self.grad_object),
+                Binding::buffer(&self.grad_pose),
+            ],
+        );
+        rec.compute_constants(&renderer.pose, &self.mesh.vertex_count());
+        rec.dispatch(self.mesh.vertex_count().div_ceil(64).clamp(1, 256), 1, n);
+        rec.memory_barrier();
+        Ok(())
+    }
+
+    /// Records a copy of the triangle ids (for [`Scene::read`]'s `ids`).
+    pub fn record_ids_readback(&self, rec: &mut Recorder) -> Result<()> {
+        rec.transition(&[&self.gbuffer.ids], ImageState::Storage, ImageState::TransferSrc);
+        rec.copy_image_to_buffer(&self.gbuffer.ids, &self.ids_readback)
+    }
+
+    /// The buffer holding each view's loss at float index 4 view + 3.
+    pub fn loss_stats(&self) -> &Buffer {
+        &self.stats
+    }
+
+    /// Object-space vertex gradients, 3 floats per vertex.
+    pub fn vertex_gradient(&self) -> &Buffer {
+        &self.grad_object
+    }
+
+    /// Pose gradients, 6 floats per view.
+    pub fn pose_gradient(&self) -> &Buffer {
+        &self.grad_pose
+    }
+
+    /// Reads every result back (after the submission completed).
+    pub fn read(&mut self) -> Result<Evaluation> {
+        let n = self.views.count() as usize;
+        let v = self.mesh.vertex_count() as usize;
+        let pixels = n * self.views.width() as usize * self.views.height() as usize;
+        let stats = self.stats.read_range::<f32>(0, 4 * n)?;
+        Ok(Evaluation {
+            loss: (0..n).map(|k| stats[4 * k + 3]).collect(),
+            vertex_gradient: self.grad_object.read_range::<[f32; 3]>(0, v)?,
+            pose_gradient: self.grad_pose.read_range::<[f32; 6]>(0, n)?,
+            attribute_gradient: self.grad_attributes.read_range::<f32>(0, v * self.channels as usize)?,
+            antialiased: self.antialiased.read_range::<f32>(0, pixels * self.channels.max(1) as usize)?,
+            ids: self.ids_readback.read_range::<u32>(0, pixels)?,
+        })
+    }
+
+    /// The signed distance field of the observation, [view][row][column] (distance loss
+    /// only; after a submission that included [`Scene::record_prepare`]).
+    pub fn read_distance_field(&mut self) -> Result<Vec<f32>> {
+        if self.loss != Loss::Distance {
+            return Err(Error::InvalidInput("only the distance loss has a distance field".into()));
+        }
+        let pixels = self.views.count() as usize * self.views.width() as usize * self.views.height() as usize;
+        self.distance.read_range::<f32>(0, pixels)
+    }
+
+    /// One-shot convenience: prepare, evaluate once, read everything back.
+    pub fn evaluate(&mut self, ctx: &Context, renderer: &DiffRenderer) -> Result<Evaluation> {
+        let mut rec = Recorder::new(ctx)?;
+        self.record_prepare(renderer, &mut rec)?;
+        self.record(renderer, &mut rec)?;
+        self.record_ids_readback(&mut rec)?;
+        ctx.submit_and_wait(rec)?;
+        self.read()
+    }
+}

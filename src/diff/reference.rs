@@ -1,0 +1,273 @@
+//! Float64 reference of the differentiable renderer's forward model, with the triangle
+//! ids of every pixel held fixed (visibility is piecewise constant: within one piece the
+//! image is a smooth function of the vertices and poses, which is what central
+//! differences of this model measure and the device's gradients must match).
+//!
+//! It mirrors `glsl/include/diff.glsl`, `shade.glsl` and `antialias.comp` step by step.
+
+use glam::{DMat3, DVec2, DVec3};
+
+use super::NO_NEIGHBOUR;
+use crate::camera::Camera;
+use crate::loss::{reference as loss_reference, Loss};
+
+const MAX_WALK: usize = 8;
+
+/// Everything the model holds fixed.
+pub struct Problem<'a> {
+    pub triangles: &'a [[u32; 3]],
+    /// As [`super::neighbours`].
+    pub neighbours: &'a [u32],
+    pub cameras: &'a [Camera],
+    /// Triangle id + 1 per pixel, [view][row][column] (from the device).
+    pub ids: &'a [u32],
+    /// Observed images, [view][row][column][channel].
+    pub observed: &'a [f64],
+    /// Signed distance fields, [view][row][column] (only read by [`Loss::Distance`]).
+    pub distance: &'a [f64],
+    /// Per-vertex attributes and their channel count, or `None` for coverage.
+    pub attributes: Option<(&'a [f64], usize)>,
+    pub loss: Loss,
+}
+
+/// A pose as the model takes it: camera = rotation * object + translation.
+#[derive(Clone, Copy, Debug)]
+pub struct RigidPose {
+    pub rotation: DMat3,
+    pub translation: DVec3,
+}
+
+/// The model's output.
+pub struct Output {
+    /// Sum over views of each view's loss.
+    pub loss: f64,
+    /// Loss of each view.
+    pub view_losses: Vec<f64>,
+    /// Antialiased images, [view][row][column][channel].
+    pub antialiased: Vec<f64>,
+}
+
+struct Tri {
+    v: [usize; 3],
+    cam: [DVec3; 3],
+    clip: [DVec3; 3],
+}
+
+struct ViewModel<'a> {
+    problem: &'a Problem<'a>,
+    camera: Camera,
+    ids: &'a [u32],
+    cam: Vec<DVec3>,
+    scale: DVec2,
+    shift: DVec2,
+}
+
+fn cross2(a: DVec2, b: DVec2) -> f64 {
+    a.x * b.y - a.y * b.x
+}
+
+fn edge_function(ci: DVec3, cj: DVec3, p: DVec2) -> f64 {
+    cross2(DVec2::new(ci.x, ci.y) - p * ci.z, DVec2::new(cj.x, cj.y) - p * cj.z)
+}
+
+fn edge_functions(c: &[DVec3; 3], p: DVec2) -> [f64; 3] {
+    [edge_function(c[1], c[2], p), edge_function(c[2], c[0], p), edge_function(c[0], c[1], p)]
+}
+
+struct Crossing {
+    triangle: usize,
+    edge: usize,
+    alpha: f64,
+}
+
+struct Pair {
+    f: (usize, usize),
+    g: (usize, usize),
+    affects_g: bool,
+    weight: f64,
+}
+
+impl ViewModel<'_> {
+    fn tri(&self, t: usize) -> Tri {
+        let v = self.problem.triangles[t].map(|i| i as usize);
+        let cam = v.map(|i| self.cam[i]);
+        let clip = cam.map(|c| {
+            let xy = self.scale * DVec2::new(c.x, c.y) + self.shift * c.z;
+            DVec3::new(xy.x, xy.y, c.z)
+        });
+        Tri { v, cam, clip }
+    }
+
+    fn facing(tri: &Tri) -> f64 {
+        if tri.cam[0].dot(tri.cam[1].cross(tri.cam[2])) >= 0.0 {
+            1.0
+        } else {
+            -1.0
+        }
+    }
+
+    fn ndc(&self, (x, y): (usize, usize)) -> DVec2 {
+        DVec2::new(
+            (x as f64 + 0.5) * 2.0 / self.camera.width as f64 - 1.0,
+            (y as f64 + 0.5) * 2.0 / self.camera.height as f64 - 1.0,
+        )
+    }
+
+    fn id(&self, (x, y): (usize, usize)) -> u32 {
+        self.ids[y * self.camera.width as usize + x]
+    }
+
+    fn barycentrics(tri: &Tri, p: DVec2) -> [f64; 3] {
+        let e = edge_functions(&tri.clip, p);
+        let s = e[0] + e[1] + e[2];
+        e.map(|v| v / s)
+    }
+
+    fn depth(&self, t: usize, p: DVec2) -> f64 {
+        let tri = self.tri(t);
+        let b = Self::barycentrics(&tri, p);
+        (0..3).map(|k| b[k] * tri.cam[k].z).sum()
+    }
+
+    fn colour(&self, pixel: (usize, usize), channels: usize) -> Vec<f64> {
+        let id = self.id(pixel);
+        let mut c = vec![0.0; channels];
+        if id == 0 {
+            return c;
+        }
+        match self.problem.attributes {
+            None => c[0] = 1.0,
+            Some((attributes, n)) => {
+                let tri = self.tri(id as usize - 1);
+                let b = Self::barycentrics(&tri, self.ndc(pixel));
+                for (ch, value) in c.iter_mut().enumerate() {
+                    *value = (0..3).map(|k| b[k] * attributes[tri.v[k] * n + ch]).sum();
+                }
+            }
+        }
+        c
+    }
+
+    fn find_crossing(&self, t: usize, pf: DVec2, pb: DVec2) -> Option<Crossing> {
+        let mut current = t;
+        let mut previous = None;
+        for _ in 0..MAX_WALK {
+            let tri = self.tri(current);
+            let ef = edge_functions(&tri.clip, pf);
+            let eb = edge_functions(&tri.clip, pb);
+            let inside = (ef[0] + ef[1] + ef[2]).signum();
+            let mut exit: Option<(usize, f64)> = None;
+            for k in 0..3 {
+                let across = self.problem.neighbours[3 * current + k];
+                if previous.is_some_and(|p| across == p) {
+                    continue;
+                }
+                if ef[k] * inside > 0.0 && eb[k] * inside < 0.0 {
+                    let a = ef[k] / (ef[k] - eb[k]);
+                    if exit.is_none_or(|(_, best)| a < best) {
+                        exit = Some((k, a));
+                    }
+                }
+            }
+            let (edge, alpha) = exit?;
+            let next = self.problem.neighbours[3 * current + edge];
+            let silhouette = next == NO_NEIGHBOUR || Self::facing(&self.tri(next as usize)) != Self::facing(&tri);
+            if silhouette {
+                return Some(Crossing { triangle: current, edge, alpha });
+            }
+            previous = Some(current as u32);
+            current = next as usize;
+        }
+        None
+    }
+
+    fn handled_along_x(&self, tri: &Tri, edge: usize) -> bool {
+        let ci = tri.clip[(edge + 1) % 3];
+        let cj = tri.clip[(edge + 2) % 3];
+        let lx = ci.y * cj.z - ci.z * cj.y;
+        let ly = ci.z * cj.x - ci.x * cj.z;
+        lx.abs() / self.camera.width as f64 >= ly.abs() / self.camera.height as f64
+    }
+
+    fn make_pair(&self, p: (usize, usize), q: (usize, usize), along_x: bool) -> Option<Pair> {
+        let (id_p, id_q) = (self.id(p), self.id(q));
+        if id_p == id_q {
+            return None;
+        }
+        let (np, nq) = (self.ndc(p), self.ndc(q));
+        let depth = |id: u32, n: DVec2| if id == 0 { f64::INFINITY } else { self.depth(id as usize - 1, n) };
+        let p_front = depth(id_p, np) <= depth(id_q, nq);
+        let (f, g, front_id, pf, pb) = if p_front { (p, q, id_p, np, nq) } else { (q, p, id_q, nq, np) };
+        let crossing = self.find_crossing(front_id as usize - 1, pf, pb)?;
+        if self.handled_along_x(&self.tri(crossing.triangle), crossing.edge) != along_x {
+            return None;
+        }
+        Some(Pair { f, g, affects_g: crossing.alpha > 0.5, weight: (crossing.alpha - 0.5).abs() })
+    }
+
+    fn antialiased(&self, channels: usize) -> Vec<f64> {
+        let (w, h) = (self.camera.width as usize, self.camera.height as usize);
+        let mut out = vec![0.0; w * h * channels];
+        for y in 0..h {
+            for x in 0..w {
+                let p = (x, y);
+                let c = self.colour(p, channels);
+                let mut a = c.clone();
+                let neighbours = [(1i64, 0i64), (0, 1), (-1, 0), (0, -1)];
+                for (s, (dx, dy)) in neighbours.into_iter().enumerate() {
+                    let (qx, qy) = (x as i64 + dx, y as i64 + dy);
+                    if qx < 0 || qy < 0 || qx >= w as i64 || qy >= h as i64 {
+                        continue;
+                    }
+                    let q = (qx as usize, qy as usize);
+                    let pair = if s < 2 { self.make_pair(p, q, s == 0) } else { self.make_pair(q, p, s == 2) };
+                    let Some(pair) = pair else { continue };
+                    let affected = if pair.affects_g { pair.g } else { pair.f };
+                    if affected != p {
+                        continue;
+                    }
+                    let other = if pair.affects_g { pair.f } else { pair.g };
+                    let co = self.colour(other, channels);
+                    for ch in 0..channels {
+                        a[ch] += pair.weight * (co[ch] - c[ch]);
+                    }
+                }
+                out[(y * w + x) * channels..][..channels].copy_from_slice(&a);
+            }
+        }
+        out
+    }
+}
+
+/// Evaluates the model at object-space `positions` and per-view `poses`.
+pub fn evaluate(problem: &Problem, positions: &[DVec3], poses: &[RigidPose]) -> Output {
+    let channels = problem.attributes.map_or(1, |(_, n)| n);
+    let mut offset_ids = 0;
+    let mut offset_distance = 0;
+    let mut view_losses = Vec::new();
+    let mut antialiased = Vec::new();
+    for (camera, pose) in problem.cameras.iter().zip(poses) {
+        let n = camera.width as usize * camera.height as usize;
+        let (w, h) = (camera.width as f64, camera.height as f64);
+        let model = ViewModel {
+            problem,
+            camera: *camera,
+            ids: &problem.ids[offset_ids..offset_ids + n],
+            cam: positions.iter().map(|&x| pose.rotation * x + pose.translation).collect(),
+            scale: DVec2::new(2.0 * camera.fx / w, 2.0 * camera.fy / h),
+            shift: DVec2::new(2.0 * camera.cx / w - 1.0, 2.0 * camera.cy / h - 1.0),
+        };
+        let a = model.antialiased(channels);
+        let observed = &problem.observed[offset_ids * channels..(offset_ids + n) * channels];
+        let distance = if problem.loss == Loss::Distance {
+            &problem.distance[offset_distance..offset_distance + n]
+        } else {
+            &[][..]
+        };
+        view_losses.push(loss_reference::loss(problem.loss, &a, observed, distance, channels));
+        antialiased.extend(a);
+        offset_ids += n;
+        offset_distance += n;
+    }
+    Output { loss: view_losses.iter().sum(), view_losses, antialiased }
+}

@@ -1,0 +1,341 @@
+//! Gradients of the differentiable renderer against central differences of the float64
+//! reference model (`diff::reference`), with the triangle ids of every pixel held at the
+//! device's (visibility is piecewise constant; within a piece the loss is smooth).
+//!
+//! Each case checks: the device's loss and antialiased image against the model (loss
+//! within 1e-4 relative, pixels within 1e-3), no NaN or Inf anywhere, and the vertex
+//! gradient (all vertices, 3 coordinates) and the pose gradient (translation and rotation
+//! separately) against central differences with step 1e-6 x the object's size (1e-6 rad
+//! for rotations): relative error |g - g_fd| / |g_fd| (Euclidean norms over the whole
+//! vector) at most 1e-2.
+
+mod common;
+
+use glam::{DMat3, DVec3};
+
+use vkdr::diff::reference::{self, Problem, RigidPose};
+use vkdr::diff::{neighbours, DiffRenderer, Evaluation, Scene, SceneDesc};
+use vkdr::loss::Loss;
+use vkdr::raster::View;
+use vkdr::{Camera, Mesh, Pose};
+
+const TOLERANCE: f64 = 1e-2;
+
+struct Case {
+    mesh: Mesh,
+    views: Vec<View>,
+    loss: Loss,
+    /// [view][row][column][channel]
+    observed: Vec<f32>,
+    attributes: Option<(Vec<f32>, u32)>,
+}
+
+/// What a check measured.
+#[derive(Debug)]
+struct Report {
+    loss: f64,
+    vertex_error: f64,
+    vertex_norm: f64,
+    translation_error: f64,
+    translation_norm: f64,
+    rotation_error: f64,
+    rotation_norm: f64,
+}
+
+fn relative_error(got: &[f64], want: &[f64]) -> (f64, f64) {
+    let diff: f64 = got.iter().zip(want).map(|(a, b)| (a - b).powi(2)).sum::<f64>().sqrt();
+    let norm: f64 = want.iter().map(|b| b * b).sum::<f64>().sqrt();
+    (if norm > 0.0 { diff / norm } else { diff }, norm)
+}
+
+fn rigid(pose: &Pose) -> RigidPose {
+    RigidPose { rotation: pose.rotation_matrix(), translation: pose.translation }
+}
+
+/// Evaluates on the device and against the model; returns the report (asserting the
+/// forward agreement and the absence of NaN here, the gradient bounds in the caller).
+fn check(case: &Case) -> (Report, Evaluation) {
+    let ctx = common::context();
+    let renderer = DiffRenderer::new(&ctx).expect("diff renderer");
+    let attributes = case.attributes.as_ref().map(|(a, c)| (a.as_slice(), *c));
+    let mut scene = Scene::new(
+        &ctx,
+        &SceneDesc {
+            mesh: &case.mesh,
+            views: &case.views,
+            loss: case.loss,
+            observed: &case.observed,
+            attributes,
+        },
+    )
+    .expect("scene");
+    let gpu = scene.evaluate(&ctx, &renderer).expect("evaluate");
+    let distance: Vec<f64> = if case.loss == Loss::Distance {
+        scene.read_distance_field().unwrap().iter().map(|&d| d as f64).collect()
+    } else {
+        Vec::new()
+    };
+    common::assert_no_validation_errors(&ctx);
+
+    let finite = gpu.loss.iter().chain(gpu.vertex_gradient.iter().flatten()).chain(gpu.pose_gradient.iter().flatten());
+    for value in finite.chain(&gpu.antialiased).chain(&gpu.attribute_gradient) {
+        assert!(value.is_finite(), "non-finite output {value}");
+    }
+
+    let cameras: Vec<Camera> = case.views.iter().map(|v| v.camera).collect();
+    let triangles = case.mesh.triangles();
+    let adjacency = neighbours(&case.mesh);
+    let observed: Vec<f64> = case.observed.iter().map(|&v| v as f64).collect();
+    let attributes64: Option<Vec<f64>> = case.attributes.as_ref().map(|(a, _)| a.iter().map(|&v| v as f64).collect());
+    let problem = Problem {
+        triangles,
+        neighbours: &adjacency,
+        cameras: &cameras,
+        ids: &gpu.ids,
+        observed: &observed,
+        distance: &distance,
+        attributes: attributes64.as_deref().zip(case.attributes.as_ref().map(|(_, c)| *c as usize)),
+        loss: case.loss,
+    };
+    let positions: Vec<DVec3> = case.mesh.positions().iter().map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)).collect();
+    let poses: Vec<RigidPose> = case.views.iter().map(|v| rigid(&v.pose)).collect();
+    let base = reference::evaluate(&problem, &positions, &poses);
+
+    let gpu_loss: f64 = gpu.loss.iter().map(|&l| l as f64).sum();
+    assert!(
+        (gpu_loss - base.loss).abs() <= 1e-4 * base.loss.abs().max(1e-3),
+        "loss: device {gpu_loss}, reference {}",
+        base.loss
+    );
+    for (k, (&a, &b)) in gpu.antialiased.iter().zip(&base.antialiased).enumerate() {
+        assert!((a as f64 - b).abs() <= 1e-3, "antialiased value {k}: device {a}, reference {b}");
+    }
+
+    let (lo, hi) = case.mesh.bounds();
+    let size = (0..3).map(|k| (hi[k] - lo[k]) as f64).fold(0.0, f64::max);
+    let h = 1e-6 * size;
+    let loss_at = |positions: &[DVec3], poses: &[RigidPose]| reference::evaluate(&problem, positions, poses).loss;
+
+    let mut fd_vertex = Vec::with_capacity(positions.len() * 3);
+    let mut moved = positions.clone();
+    for v in 0..positions.len() {
+        for axis in 0..3 {
+            let mut step = DVec3::ZERO;
+            step[axis] = h;
+            moved[v] = positions[v] + step;
+            let plus = loss_at(&moved, &poses);
+            moved[v] = positions[v] - step;
+            let minus = loss_at(&moved, &poses);
+            moved[v] = positions[v];
+            fd_vertex.push((plus - minus) / (2.0 * h));
+        }
+    }
+    let got_vertex: Vec<f64> = gpu.vertex_gradient.iter().flatten().map(|&g| g as f64).collect();
+    let (vertex_error, vertex_norm) = relative_error(&got_vertex, &fd_vertex);
+
+    let (mut fd_t, mut fd_r, mut got_t, mut got_r) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let angle = 1e-6;
+    for (view, pose) in poses.iter().enumerate() {
+        for axis in 0..3 {
+            let mut moved = poses.clone();
+            let mut e = DVec3::ZERO;
+            e[axis] = 1.0;
+            moved[view].translation = pose.translation + e * h;
+            let plus = loss_at(&positions, &moved);
+            moved[view].translation = pose.translation - e * h;
+            let minus = loss_at(&positions, &moved);
+            fd_t.push((plus - minus) / (2.0 * h));
+            moved[view].translation = pose.translation;
+            moved[view].rotation = DMat3::from_axis_angle(e, angle) * pose.rotation;
+            let plus = loss_at(&positions, &moved);
+            moved[view].rotation = DMat3::from_axis_angle(e, -angle) * pose.rotation;
+            let minus = loss_at(&positions, &moved);
+            fd_r.push((plus - minus) / (2.0 * angle));
+            got_t.push(gpu.pose_gradient[view][axis] as f64);
+            got_r.push(gpu.pose_gradient[view][3 + axis] as f64);
+        }
+    }
+    let (translation_error, translation_norm) = relative_error(&got_t, &fd_t);
+    let (rotation_error, rotation_norm) = relative_error(&got_r, &fd_r);
+    let report = Report { loss: base.loss, vertex_error, vertex_norm, translation_error, translation_norm, rotation_error, rotation_norm };
+    eprintln!("{report:?}");
+    (report, gpu)
+}
+
+/// Asserts gradients that are not all zero and within the tolerance.
+fn assert_gradients_match(case: &Case) -> Report {
+    let (report, _) = check(case);
+    assert!(report.vertex_norm > 0.0 && report.translation_norm > 0.0 && report.rotation_norm > 0.0, "vacuous: {report:?}");
+    assert!(report.vertex_error <= TOLERANCE, "vertex gradient: {report:?}");
+    assert!(report.translation_error <= TOLERANCE, "translation gradient: {report:?}");
+    assert!(report.rotation_error <= TOLERANCE, "rotation gradient: {report:?}");
+    report
+}
+
+/// A disc mask (1 inside) centred at (cx, cy) with radius r, in pixels.
+fn disc(width: u32, height: u32, cx: f64, cy: f64, r: f64) -> Vec<f32> {
+    let mut mask = Vec::with_capacity((width * height) as usize);
+    for y in 0..height {
+        for x in 0..width {
+            let d = ((x as f64 + 0.5 - cx).powi(2) + (y as f64 + 0.5 - cy).powi(2)).sqrt();
+            mask.push(if d <= r { 1.0 } else { 0.0 });
+        }
+    }
+    mask
+}
+
+fn camera(size: u32) -> Camera {
+    Camera::new(1.3 * size as f64, 1.25 * size as f64, 0.52 * size as f64, 0.47 * size as f64, size, size).unwrap()
+}
+
+/// A sphere of `radius` seen at `distance`, compared with an off-centre disc.
+fn sphere_case(loss: Loss, radius: f32, distance: f64, size: u32) -> Case {
+    let camera = camera(size);
+    let pose = Pose::new([0.1 * distance * 0.1, -0.05 * distance * 0.1, distance], [0.4, -0.3, 0.2]).unwrap();
+    let s = size as f64;
+    Case {
+        mesh: Mesh::uv_sphere(radius, 6, 9),
+        views: vec![View { camera, pose }],
+        loss,
+        observed: disc(size, size, 0.58 * s, 0.43 * s, 0.3 * s),
+        attributes: None,
+    }
+}
+
+#[test]
+fn mse_of_coverage() {
+    assert_gradients_match(&sphere_case(Loss::Mse, 0.1, 0.45, 64));
+}
+
+#[test]
+fn soft_iou() {
+    assert_gradients_match(&sphere_case(Loss::Iou, 0.1, 0.45, 64));
+}
+
+#[test]
+fn distance_loss() {
+    assert_gradients_match(&sphere_case(Loss::Distance, 0.1, 0.45, 64));
+}
+
+#[test]
+fn mse_of_interpolated_colour() {
+    let mut case = sphere_case(Loss::Mse, 0.1, 0.45, 64);
+    let colours: Vec<f32> = case
+        .mesh
+        .positions()
+        .iter()
+        .flat_map(|p| [0.5 + 4.0 * p[0], 0.5 + 4.0 * p[1], 0.5 + 4.0 * p[2]])
+        .collect();
+    let mask = case.observed.clone();
+    case.observed = mask.iter().flat_map(|&m| [0.2 * m, 0.6 * m, 0.9 * m]).collect();
+    case.attributes = Some((colours, 3));
+    let report = assert_gradients_match(&case);
+    assert!(report.loss > 0.0);
+}
+
+#[test]
+fn triangles_much_smaller_than_a_pixel() {
+    // 1200 triangles on a sphere about 14 pixels across.
+    let mut case = sphere_case(Loss::Mse, 0.1, 1.5, 24);
+    case.mesh = Mesh::uv_sphere(0.1, 24, 26);
+    assert_gradients_match(&case);
+}
+
+#[test]
+fn sliver_triangle() {
+    // A quad split into a regular triangle and a sliver 1e-3 of its width.
+    let mesh = Mesh::new(
+        vec![[-0.1, -0.1, 0.0], [0.1, -0.1, 0.0], [0.1, 0.1, 0.0], [-0.1, 0.1, 0.0], [-0.0998, 0.1, 0.0]],
+        vec![[0, 1, 2], [0, 2, 4], [0, 4, 3]],
+    )
+    .unwrap();
+    let mut case = sphere_case(Loss::Mse, 0.1, 0.45, 64);
+    case.mesh = mesh;
+    assert_gradients_match(&case);
+}
+
+#[test]
+fn triangle_crossing_near_plane() {
+    // A floor-like quad from 0.1 m to 3 m in front of the camera and 0.5 m behind it.
+    let mesh = Mesh::new(
+        vec![[-0.3, 0.15, -0.5], [0.3, 0.15, -0.5], [0.25, 0.1, 3.0], [-0.35, 0.1, 3.0]],
+        vec![[0, 1, 2], [0, 2, 3]],
+    )
+    .unwrap();
+    let mut cam = camera(64);
+    cam.near = 0.05;
+    let case = Case {
+        mesh,
+        views: vec![View { camera: cam, pose: Pose::new([0.02, 0.0, 0.0], [0.05, 0.1, 0.0]).unwrap() }],
+        loss: Loss::Mse,
+        observed: disc(64, 64, 30.0, 40.0, 15.0),
+        attributes: None,
+    };
+    assert_gradients_match(&case);
+}
+
+#[test]
+fn object_partly_outside_the_image() {
+    let mut case = sphere_case(Loss::Mse, 0.1, 0.45, 64);
+    case.views[0].pose.translation.x = 0.12;
+    assert_gradients_match(&case);
+}
+
+#[test]
+fn object_entirely_outside_the_image_has_zero_gradient() {
+    let mut case = sphere_case(Loss::Mse, 0.1, 0.45, 64);
+    case.views[0].pose.translation.x = 2.0;
+    let (report, gpu) = check(&case);
+    assert!(gpu.vertex_gradient.iter().flatten().all(|&g| g == 0.0));
+    assert!(gpu.pose_gradient.iter().flatten().all(|&g| g == 0.0));
+    assert_eq!(report.vertex_norm, 0.0);
+    assert!(report.loss > 0.0, "the observed disc is still there: {report:?}");
+}
+
+#[test]
+fn one_surface_occluding_another() {
+    let front = Mesh::uv_sphere(0.06, 6, 9);
+    let back = Mesh::uv_sphere(0.1, 6, 9);
+    let offset = front.vertex_count() as u32;
+    let positions = front
+        .positions()
+        .iter()
+        .map(|p| [p[0] + 0.05, p[1] + 0.02, p[2] - 0.12])
+        .chain(back.positions().iter().copied())
+        .collect();
+    let triangles = front.triangles().iter().copied().chain(back.triangles().iter().map(|t| t.map(|v| v + offset))).collect();
+    let mut case = sphere_case(Loss::Mse, 0.1, 0.45, 64);
+    case.mesh = Mesh::new(positions, triangles).unwrap();
+    assert_gradients_match(&case);
+}
+
+#[test]
+fn duplicated_vertices() {
+    // Every triangle with its own three vertices: no shared edges, every edge a boundary.
+    let welded = Mesh::uv_sphere(0.1, 6, 9);
+    let positions = welded.triangles().iter().flat_map(|t| t.map(|v| welded.positions()[v as usize])).collect();
+    let triangles = (0..welded.triangle_count() as u32).map(|t| [3 * t, 3 * t + 1, 3 * t + 2]).collect();
+    let mut case = sphere_case(Loss::Mse, 0.1, 0.45, 64);
+    case.mesh = Mesh::new(positions, triangles).unwrap();
+    assert_gradients_match(&case);
+}
+
+#[test]
+fn object_of_one_millimetre() {
+    assert_gradients_match(&sphere_case(Loss::Mse, 0.0005, 0.00225, 64));
+}
+
+#[test]
+fn object_of_one_kilometre() {
+    assert_gradients_match(&sphere_case(Loss::Mse, 500.0, 2250.0, 64));
+}
+
+#[test]
+fn several_views_in_one_submission() {
+    let mut case = sphere_case(Loss::Mse, 0.1, 0.45, 48);
+    let second = View { camera: camera(48), pose: Pose::new([-0.02, 0.01, 0.5], [1.2, 0.3, -0.4]).unwrap() };
+    case.views.push(second);
+    let mask = case.observed.clone();
+    case.observed.extend(mask.iter().rev());
+    assert_gradients_match(&case);
+}
