@@ -1,4 +1,4 @@
-// Jump flooding (Rong & Tan 2006, with a final extra pass of step 1) for the signed
+// Jump flooding (Rong & Tan 2006, with two extra passes of steps 2 and 1) for the signed
 // distance field of an observed mask. Seeds are packed pixel coordinates x | y << 16;
 // NO_SEED marks none. Set 0 floods from mask pixels, set 1 from background pixels;
 // z = 2 view + set.
