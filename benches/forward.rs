@@ -54,7 +54,7 @@ fn forward(c: &mut Criterion) {
     let camera = Camera::centered(2.0 * SIZE as f64, SIZE, SIZE).unwrap();
     let views = [View {
         camera,
-        pose: Pose::new([0.0, 0.0, 0.25], [0.3, 0.2, 0.0]).unwrap(),
+        pose: Pose::new([0.0, 0.0, 0.6], [0.3, 0.2, 0.0]).unwrap(),
     }];
     let max_vertices: usize = std::env::var("VKDR_BENCH_MAX_VERTICES")
         .ok()

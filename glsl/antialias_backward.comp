@@ -1,5 +1,6 @@
 #version 460
-// Backward of antialias.comp: dL/dA per pixel (loss_gradient) pushed to the camera-space
+// Backward of antialias.comp over the work list (pixels off the list have no pair and
+// nothing interpolated): dL/dA per pixel (loss_gradient) pushed to the camera-space
 // vertex positions of every view (atomically, grad_camera[view][vertex]) through
 //   - the silhouette crossings: each pair is handled by its left / upper pixel, and
 //     d alpha / d(edge function) chains to the edge's two clip-space vertices;
@@ -7,6 +8,8 @@
 //     that moved colour into or out of it) to the attributes (grad_attributes) and, via
 //     the exact barycentrics, to the triangle's three clip-space vertices.
 #include "diff_pass.glsl"
+
+layout(local_size_x = 64) in;
 
 layout(set = 0, binding = 10, std430) buffer GradCamera { float grad_camera[]; };        // [view][vertex][3]
 layout(set = 0, binding = 11, std430) buffer GradAttributes { float grad_attributes[]; };  // [vertex][channel]
@@ -24,7 +27,7 @@ void add_clip_gradient(ViewData vd, uint view, uint v, vec3 g_clip) {
 
 void crossing_backward(ViewData vd, uint view, Pair pair) {
     ivec2 affected = pair.affects_g ? pair.g : pair.f;
-    vec4 ga = loss_gradient(pixel_index(affected, view, vd), view, vd);
+    vec4 ga = loss_gradient(pixel_index(affected, view), view);
     vec4 cf = colour_at(vd, pair.f, id_at(pair.f, view));
     vec4 cg = colour_at(vd, pair.g, id_at(pair.g, view));
     float g_alpha = dot(ga, cf - cg);
@@ -46,21 +49,24 @@ void crossing_backward(ViewData vd, uint view, Pair pair) {
     add_clip_gradient(vd, view, tri.v[j], gj);
 }
 
-void main() {
-    uint view = gl_GlobalInvocationID.z;
-    ViewData vd = views[view];
-    ivec2 size = ivec2(vd.size);
-    ivec2 p = ivec2(gl_GlobalInvocationID.xy);
-    if (any(greaterThanEqual(p, size))) return;
-
-    const ivec2 steps[4] = ivec2[4](ivec2(1, 0), ivec2(0, 1), ivec2(-1, 0), ivec2(0, -1));
-    uint id = id_at(p, view);
+void handle_pixel(uint index) {
+    uint view = view_of(index);
+    ivec2 size = ivec2(pc.width, pc.height);
+    ivec2 p = pixel_of(index);
+    const ivec2 steps[4] = STEPS;
+    uint id = ids[index];
     bool interpolated = pc.channels > 0u && id != 0u;
-    uint index = pixel_index(p, view, vd);
-    vec4 g_colour = interpolated ? loss_gradient(index, view, vd) : vec4(0.0);
+    bool any_pair = false;
     for (int s = 0; s < 4; ++s) {
+        ivec2 q = clamp(p + steps[s], ivec2(0), size - 1);
+        any_pair = any_pair || pair_matters(id, id_at(q, view));
+    }
+    ViewData vd = views[view];
+    vec4 g_colour = interpolated ? loss_gradient(index, view) : vec4(0.0);
+    for (int s = 0; s < 4 && any_pair; ++s) {
         ivec2 q = p + steps[s];
         if (any(lessThan(q, ivec2(0))) || any(greaterThanEqual(q, size))) continue;
+        if (!pair_matters(id_at(p, view), id_at(q, view))) continue;
         bool forward = s < 2;
         if (!forward && !interpolated) continue;
         Pair pair = forward ? make_pair(vd, view, p, q, s == 0) : make_pair(vd, view, q, p, s == 2);
@@ -69,12 +75,11 @@ void main() {
         if (interpolated) {
             // out[a] += w (c[o] - c[a]): d/dc[a] = -w, d/dc[o] = +w.
             ivec2 affected = pair.affects_g ? pair.g : pair.f;
-            vec4 ga = loss_gradient(pixel_index(affected, view, vd), view, vd);
+            vec4 ga = loss_gradient(pixel_index(affected, view), view);
             g_colour += (affected == p ? -pair.weight : pair.weight) * ga;
         }
     }
     if (!interpolated) return;
-
     Triangle tri = load_triangle(vd, id - 1u);
     vec2 np = pixel_ndc(p, vd);
     vec3 e = edge_functions(tri.clip[0], tri.clip[1], tri.clip[2], np);
@@ -94,4 +99,10 @@ void main() {
     edge_function_backward(tri.clip[2], tri.clip[0], np, g_e.y, g_clip[2], g_clip[0]);
     edge_function_backward(tri.clip[0], tri.clip[1], np, g_e.z, g_clip[0], g_clip[1]);
     for (int k = 0; k < 3; ++k) add_clip_gradient(vd, view, tri.v[k], g_clip[k]);
+}
+
+void main() {
+    uint count = work_count[0];
+    uint stride = gl_NumWorkGroups.x * gl_WorkGroupSize.x;
+    for (uint i = gl_GlobalInvocationID.x; i < count; i += stride) handle_pixel(work[i]);
 }

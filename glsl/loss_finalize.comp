@@ -1,17 +1,40 @@
 #version 460
-// The loss of each view from the sums of antialias.comp: stats[4 view + 3].
-layout(local_size_x = 1) in;
+// The loss of each view: adds the per-subgroup partials of classify.comp to what
+// antialias.comp accumulated in stats[4 view + 0..2] (loss sum, intersection, union) and
+// writes the loss to stats[4 view + 3]. One workgroup per view.
+#extension GL_KHR_shader_subgroup_arithmetic : require
+#extension GL_KHR_shader_subgroup_basic : require
+
+layout(local_size_x = 64) in;
 
 layout(set = 0, binding = 0, std430) buffer Stats { float stats[]; };
+layout(set = 0, binding = 1, std430) readonly buffer Partials { float partials[]; };
 
-layout(push_constant, std430) uniform Constants { uint loss; } pc;
+layout(push_constant, std430) uniform Constants {
+    uint loss;
+    uint partial_slots;
+} pc;
+
+shared vec3 per_subgroup[64];
 
 void main() {
-    uint view = gl_GlobalInvocationID.x;
-    float value = stats[4u * view];
-    if (pc.loss == 1u) {
-        float union_ = stats[4u * view + 2u];
-        value = union_ > 0.0 ? 1.0 - stats[4u * view + 1u] / union_ : 0.0;
+    uint view = gl_WorkGroupID.z;
+    vec3 sum = vec3(0.0);
+    for (uint slot = gl_LocalInvocationIndex; slot < pc.partial_slots; slot += 64u) {
+        uint at = 3u * (view * pc.partial_slots + slot);
+        sum += vec3(partials[at], partials[at + 1u], partials[at + 2u]);
     }
-    stats[4u * view + 3u] = value;
+    sum = subgroupAdd(sum);
+    if (subgroupElect()) per_subgroup[gl_SubgroupID] = sum;
+    barrier();
+    if (gl_LocalInvocationIndex == 0u) {
+        vec3 total = vec3(stats[4u * view], stats[4u * view + 1u], stats[4u * view + 2u]);
+        for (uint s = 0u; s < gl_NumSubgroups; ++s) total += per_subgroup[s];
+        float value = total.x;
+        if (pc.loss == 1u) value = total.z > 0.0 ? 1.0 - total.y / total.z : 0.0;
+        stats[4u * view] = total.x;
+        stats[4u * view + 1u] = total.y;
+        stats[4u * view + 2u] = total.z;
+        stats[4u * view + 3u] = value;
+    }
 }

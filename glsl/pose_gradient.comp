@@ -2,8 +2,10 @@
 // Camera-space vertex gradients of every view to object-space vertex gradients (summed
 // over views, atomically) and to each view's pose gradient: translation t and a local
 // rotation increment d applied on the left (x_camera = exp([d]x) R x + t), so
-// dL/dt = sum g and dL/dd = sum (R x) x g. Workgroup sums are added atomically.
+// dL/dt = sum g and dL/dd = sum (R x) x g. Subgroup sums are added atomically.
 #extension GL_EXT_shader_atomic_float : require
+#extension GL_KHR_shader_subgroup_arithmetic : require
+#extension GL_KHR_shader_subgroup_basic : require
 #include "views.glsl"
 
 layout(local_size_x = 64) in;
@@ -16,12 +18,8 @@ layout(set = 0, binding = 4, std430) buffer GradPose { float grad_pose[]; };    
 
 layout(push_constant, std430) uniform Constants { uint vertex_count; } pc;
 
-shared vec3 partial_t[64];
-shared vec3 partial_r[64];
-
 void main() {
     uint view = gl_GlobalInvocationID.z;
-    uint lane = gl_LocalInvocationIndex;
     mat3 r = mat3(views[view].object_to_camera);
     vec3 sum_t = vec3(0.0);
     vec3 sum_r = vec3(0.0);
@@ -38,20 +36,12 @@ void main() {
         sum_t += g;
         sum_r += cross(r * x, g);
     }
-    partial_t[lane] = sum_t;
-    partial_r[lane] = sum_r;
-    barrier();
-    for (uint s = 32u; s > 0u; s /= 2u) {
-        if (lane < s) {
-            partial_t[lane] += partial_t[lane + s];
-            partial_r[lane] += partial_r[lane + s];
-        }
-        barrier();
-    }
-    if (lane == 0u) {
+    sum_t = subgroupAdd(sum_t);
+    sum_r = subgroupAdd(sum_r);
+    if (subgroupElect()) {
         for (int k = 0; k < 3; ++k) {
-            atomicAdd(grad_pose[6u * view + uint(k)], partial_t[0][k]);
-            atomicAdd(grad_pose[6u * view + 3u + uint(k)], partial_r[0][k]);
+            atomicAdd(grad_pose[6u * view + uint(k)], sum_t[k]);
+            atomicAdd(grad_pose[6u * view + 3u + uint(k)], sum_r[k]);
         }
     }
 }

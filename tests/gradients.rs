@@ -43,13 +43,21 @@ struct Report {
 }
 
 fn relative_error(got: &[f64], want: &[f64]) -> (f64, f64) {
-    let diff: f64 = got.iter().zip(want).map(|(a, b)| (a - b).powi(2)).sum::<f64>().sqrt();
+    let diff: f64 = got
+        .iter()
+        .zip(want)
+        .map(|(a, b)| (a - b).powi(2))
+        .sum::<f64>()
+        .sqrt();
     let norm: f64 = want.iter().map(|b| b * b).sum::<f64>().sqrt();
     (if norm > 0.0 { diff / norm } else { diff }, norm)
 }
 
 fn rigid(pose: &Pose) -> RigidPose {
-    RigidPose { rotation: pose.rotation_matrix(), translation: pose.translation }
+    RigidPose {
+        rotation: pose.rotation_matrix(),
+        translation: pose.translation,
+    }
 }
 
 /// Evaluates on the device and against the model; returns the report (asserting the
@@ -71,14 +79,26 @@ fn check(case: &Case) -> (Report, Evaluation) {
     .expect("scene");
     let gpu = scene.evaluate(&ctx, &renderer).expect("evaluate");
     let distance: Vec<f64> = if case.loss == Loss::Distance {
-        scene.read_distance_field().unwrap().iter().map(|&d| d as f64).collect()
+        scene
+            .read_distance_field()
+            .unwrap()
+            .iter()
+            .map(|&d| d as f64)
+            .collect()
     } else {
         Vec::new()
     };
     common::assert_no_validation_errors(&ctx);
 
-    let finite = gpu.loss.iter().chain(gpu.vertex_gradient.iter().flatten()).chain(gpu.pose_gradient.iter().flatten());
-    for value in finite.chain(&gpu.antialiased).chain(&gpu.attribute_gradient) {
+    let finite = gpu
+        .loss
+        .iter()
+        .chain(gpu.vertex_gradient.iter().flatten())
+        .chain(gpu.pose_gradient.iter().flatten());
+    for value in finite
+        .chain(&gpu.antialiased)
+        .chain(&gpu.attribute_gradient)
+    {
         assert!(value.is_finite(), "non-finite output {value}");
     }
 
@@ -86,7 +106,10 @@ fn check(case: &Case) -> (Report, Evaluation) {
     let triangles = case.mesh.triangles();
     let adjacency = neighbours(&case.mesh);
     let observed: Vec<f64> = case.observed.iter().map(|&v| v as f64).collect();
-    let attributes64: Option<Vec<f64>> = case.attributes.as_ref().map(|(a, _)| a.iter().map(|&v| v as f64).collect());
+    let attributes64: Option<Vec<f64>> = case
+        .attributes
+        .as_ref()
+        .map(|(a, _)| a.iter().map(|&v| v as f64).collect());
     let problem = Problem {
         triangles,
         neighbours: &adjacency,
@@ -94,10 +117,17 @@ fn check(case: &Case) -> (Report, Evaluation) {
         ids: &gpu.ids,
         observed: &observed,
         distance: &distance,
-        attributes: attributes64.as_deref().zip(case.attributes.as_ref().map(|(_, c)| *c as usize)),
+        attributes: attributes64
+            .as_deref()
+            .zip(case.attributes.as_ref().map(|(_, c)| *c as usize)),
         loss: case.loss,
     };
-    let positions: Vec<DVec3> = case.mesh.positions().iter().map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)).collect();
+    let positions: Vec<DVec3> = case
+        .mesh
+        .positions()
+        .iter()
+        .map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+        .collect();
     let poses: Vec<RigidPose> = case.views.iter().map(|v| rigid(&v.pose)).collect();
     let base = reference::evaluate(&problem, &positions, &poses);
 
@@ -108,13 +138,18 @@ fn check(case: &Case) -> (Report, Evaluation) {
         base.loss
     );
     for (k, (&a, &b)) in gpu.antialiased.iter().zip(&base.antialiased).enumerate() {
-        assert!((a as f64 - b).abs() <= 1e-3, "antialiased value {k}: device {a}, reference {b}");
+        assert!(
+            (a as f64 - b).abs() <= 1e-3,
+            "antialiased value {k}: device {a}, reference {b}"
+        );
     }
 
     let (lo, hi) = case.mesh.bounds();
     let size = (0..3).map(|k| (hi[k] - lo[k]) as f64).fold(0.0, f64::max);
     let h = 1e-6 * size;
-    let loss_at = |positions: &[DVec3], poses: &[RigidPose]| reference::evaluate(&problem, positions, poses).loss;
+    let loss_at = |positions: &[DVec3], poses: &[RigidPose]| {
+        reference::evaluate(&problem, positions, poses).loss
+    };
 
     let mut fd_vertex = Vec::with_capacity(positions.len() * 3);
     let mut moved = positions.clone();
@@ -130,10 +165,16 @@ fn check(case: &Case) -> (Report, Evaluation) {
             fd_vertex.push((plus - minus) / (2.0 * h));
         }
     }
-    let got_vertex: Vec<f64> = gpu.vertex_gradient.iter().flatten().map(|&g| g as f64).collect();
+    let got_vertex: Vec<f64> = gpu
+        .vertex_gradient
+        .iter()
+        .flatten()
+        .map(|&g| g as f64)
+        .collect();
     let (vertex_error, vertex_norm) = relative_error(&got_vertex, &fd_vertex);
 
-    let (mut fd_t, mut fd_r, mut got_t, mut got_r) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let (mut fd_t, mut fd_r, mut got_t, mut got_r) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let angle = 1e-6;
     for (view, pose) in poses.iter().enumerate() {
         for axis in 0..3 {
@@ -157,7 +198,15 @@ fn check(case: &Case) -> (Report, Evaluation) {
     }
     let (translation_error, translation_norm) = relative_error(&got_t, &fd_t);
     let (rotation_error, rotation_norm) = relative_error(&got_r, &fd_r);
-    let report = Report { loss: base.loss, vertex_error, vertex_norm, translation_error, translation_norm, rotation_error, rotation_norm };
+    let report = Report {
+        loss: base.loss,
+        vertex_error,
+        vertex_norm,
+        translation_error,
+        translation_norm,
+        rotation_error,
+        rotation_norm,
+    };
     eprintln!("{report:?}");
     (report, gpu)
 }
@@ -165,10 +214,22 @@ fn check(case: &Case) -> (Report, Evaluation) {
 /// Asserts gradients that are not all zero and within the tolerance.
 fn assert_gradients_match(case: &Case) -> Report {
     let (report, _) = check(case);
-    assert!(report.vertex_norm > 0.0 && report.translation_norm > 0.0 && report.rotation_norm > 0.0, "vacuous: {report:?}");
-    assert!(report.vertex_error <= TOLERANCE, "vertex gradient: {report:?}");
-    assert!(report.translation_error <= TOLERANCE, "translation gradient: {report:?}");
-    assert!(report.rotation_error <= TOLERANCE, "rotation gradient: {report:?}");
+    assert!(
+        report.vertex_norm > 0.0 && report.translation_norm > 0.0 && report.rotation_norm > 0.0,
+        "vacuous: {report:?}"
+    );
+    assert!(
+        report.vertex_error <= TOLERANCE,
+        "vertex gradient: {report:?}"
+    );
+    assert!(
+        report.translation_error <= TOLERANCE,
+        "translation gradient: {report:?}"
+    );
+    assert!(
+        report.rotation_error <= TOLERANCE,
+        "rotation gradient: {report:?}"
+    );
     report
 }
 
@@ -185,13 +246,25 @@ fn disc(width: u32, height: u32, cx: f64, cy: f64, r: f64) -> Vec<f32> {
 }
 
 fn camera(size: u32) -> Camera {
-    Camera::new(1.3 * size as f64, 1.25 * size as f64, 0.52 * size as f64, 0.47 * size as f64, size, size).unwrap()
+    Camera::new(
+        1.3 * size as f64,
+        1.25 * size as f64,
+        0.52 * size as f64,
+        0.47 * size as f64,
+        size,
+        size,
+    )
+    .unwrap()
 }
 
 /// A sphere of `radius` seen at `distance`, compared with an off-centre disc.
 fn sphere_case(loss: Loss, radius: f32, distance: f64, size: u32) -> Case {
     let camera = camera(size);
-    let pose = Pose::new([0.1 * distance * 0.1, -0.05 * distance * 0.1, distance], [0.4, -0.3, 0.2]).unwrap();
+    let pose = Pose::new(
+        [0.1 * distance * 0.1, -0.05 * distance * 0.1, distance],
+        [0.4, -0.3, 0.2],
+    )
+    .unwrap();
     let s = size as f64;
     Case {
         mesh: Mesh::uv_sphere(radius, 6, 9),
@@ -227,7 +300,10 @@ fn mse_of_interpolated_colour() {
         .flat_map(|p| [0.5 + 4.0 * p[0], 0.5 + 4.0 * p[1], 0.5 + 4.0 * p[2]])
         .collect();
     let mask = case.observed.clone();
-    case.observed = mask.iter().flat_map(|&m| [0.2 * m, 0.6 * m, 0.9 * m]).collect();
+    case.observed = mask
+        .iter()
+        .flat_map(|&m| [0.2 * m, 0.6 * m, 0.9 * m])
+        .collect();
     case.attributes = Some((colours, 3));
     let report = assert_gradients_match(&case);
     assert!(report.loss > 0.0);
@@ -245,7 +321,13 @@ fn triangles_much_smaller_than_a_pixel() {
 fn sliver_triangle() {
     // A quad split into a regular triangle and a sliver 1e-3 of its width.
     let mesh = Mesh::new(
-        vec![[-0.1, -0.1, 0.0], [0.1, -0.1, 0.0], [0.1, 0.1, 0.0], [-0.1, 0.1, 0.0], [-0.0998, 0.1, 0.0]],
+        vec![
+            [-0.1, -0.1, 0.0],
+            [0.1, -0.1, 0.0],
+            [0.1, 0.1, 0.0],
+            [-0.1, 0.1, 0.0],
+            [-0.0998, 0.1, 0.0],
+        ],
         vec![[0, 1, 2], [0, 2, 4], [0, 4, 3]],
     )
     .unwrap();
@@ -258,7 +340,12 @@ fn sliver_triangle() {
 fn triangle_crossing_near_plane() {
     // A floor-like quad from 0.1 m to 3 m in front of the camera and 0.5 m behind it.
     let mesh = Mesh::new(
-        vec![[-0.3, 0.15, -0.5], [0.3, 0.15, -0.5], [0.25, 0.1, 3.0], [-0.35, 0.1, 3.0]],
+        vec![
+            [-0.3, 0.15, -0.5],
+            [0.3, 0.15, -0.5],
+            [0.25, 0.1, 3.0],
+            [-0.35, 0.1, 3.0],
+        ],
         vec![[0, 1, 2], [0, 2, 3]],
     )
     .unwrap();
@@ -266,7 +353,10 @@ fn triangle_crossing_near_plane() {
     cam.near = 0.05;
     let case = Case {
         mesh,
-        views: vec![View { camera: cam, pose: Pose::new([0.02, 0.0, 0.0], [0.05, 0.1, 0.0]).unwrap() }],
+        views: vec![View {
+            camera: cam,
+            pose: Pose::new([0.02, 0.0, 0.0], [0.05, 0.1, 0.0]).unwrap(),
+        }],
         loss: Loss::Mse,
         observed: disc(64, 64, 30.0, 40.0, 15.0),
         attributes: None,
@@ -289,7 +379,10 @@ fn object_entirely_outside_the_image_has_zero_gradient() {
     assert!(gpu.vertex_gradient.iter().flatten().all(|&g| g == 0.0));
     assert!(gpu.pose_gradient.iter().flatten().all(|&g| g == 0.0));
     assert_eq!(report.vertex_norm, 0.0);
-    assert!(report.loss > 0.0, "the observed disc is still there: {report:?}");
+    assert!(
+        report.loss > 0.0,
+        "the observed disc is still there: {report:?}"
+    );
 }
 
 #[test]
@@ -303,7 +396,12 @@ fn one_surface_occluding_another() {
         .map(|p| [p[0] + 0.05, p[1] + 0.02, p[2] - 0.12])
         .chain(back.positions().iter().copied())
         .collect();
-    let triangles = front.triangles().iter().copied().chain(back.triangles().iter().map(|t| t.map(|v| v + offset))).collect();
+    let triangles = front
+        .triangles()
+        .iter()
+        .copied()
+        .chain(back.triangles().iter().map(|t| t.map(|v| v + offset)))
+        .collect();
     let mut case = sphere_case(Loss::Mse, 0.1, 0.45, 64);
     case.mesh = Mesh::new(positions, triangles).unwrap();
     assert_gradients_match(&case);
@@ -313,8 +411,14 @@ fn one_surface_occluding_another() {
 fn duplicated_vertices() {
     // Every triangle with its own three vertices: no shared edges, every edge a boundary.
     let welded = Mesh::uv_sphere(0.1, 6, 9);
-    let positions = welded.triangles().iter().flat_map(|t| t.map(|v| welded.positions()[v as usize])).collect();
-    let triangles = (0..welded.triangle_count() as u32).map(|t| [3 * t, 3 * t + 1, 3 * t + 2]).collect();
+    let positions = welded
+        .triangles()
+        .iter()
+        .flat_map(|t| t.map(|v| welded.positions()[v as usize]))
+        .collect();
+    let triangles = (0..welded.triangle_count() as u32)
+        .map(|t| [3 * t, 3 * t + 1, 3 * t + 2])
+        .collect();
     let mut case = sphere_case(Loss::Mse, 0.1, 0.45, 64);
     case.mesh = Mesh::new(positions, triangles).unwrap();
     assert_gradients_match(&case);
@@ -333,7 +437,10 @@ fn object_of_one_kilometre() {
 #[test]
 fn several_views_in_one_submission() {
     let mut case = sphere_case(Loss::Mse, 0.1, 0.45, 48);
-    let second = View { camera: camera(48), pose: Pose::new([-0.02, 0.01, 0.5], [1.2, 0.3, -0.4]).unwrap() };
+    let second = View {
+        camera: camera(48),
+        pose: Pose::new([-0.02, 0.01, 0.5], [1.2, 0.3, -0.4]).unwrap(),
+    };
     case.views.push(second);
     let mask = case.observed.clone();
     case.observed.extend(mask.iter().rev());

@@ -18,15 +18,30 @@ fn shapes(width: u32, height: u32) -> Vec<(&'static str, Vec<f32>)> {
     };
     let (w, h) = (width as f64, height as f64);
     vec![
-        ("disc", at(&|x, y| (x - 0.4 * w).hypot(y - 0.5 * h) < 0.3 * h)),
-        ("two discs", at(&|x, y| (x - 0.25 * w).hypot(y - 0.3 * h) < 0.15 * h || (x - 0.7 * w).hypot(y - 0.7 * h) < 0.2 * h)),
-        ("ring", at(&|x, y| {
-            let r = (x - 0.5 * w).hypot(y - 0.5 * h);
-            r > 0.2 * h && r < 0.35 * h
-        })),
+        (
+            "disc",
+            at(&|x, y| (x - 0.4 * w).hypot(y - 0.5 * h) < 0.3 * h),
+        ),
+        (
+            "two discs",
+            at(&|x, y| {
+                (x - 0.25 * w).hypot(y - 0.3 * h) < 0.15 * h
+                    || (x - 0.7 * w).hypot(y - 0.7 * h) < 0.2 * h
+            }),
+        ),
+        (
+            "ring",
+            at(&|x, y| {
+                let r = (x - 0.5 * w).hypot(y - 0.5 * h);
+                r > 0.2 * h && r < 0.35 * h
+            }),
+        ),
         ("empty", at(&|_, _| false)),
         ("full", at(&|_, _| true)),
-        ("one pixel", at(&|x, y| x.floor() == 7.0 && y.floor() == 5.0)),
+        (
+            "one pixel",
+            at(&|x, y| x.floor() == 7.0 && y.floor() == 5.0),
+        ),
     ]
 }
 
@@ -38,11 +53,22 @@ fn jump_flooding_matches_the_exact_signed_distance() {
         for (name, mask) in shapes(width, height) {
             let gpu = field.compute(&ctx, &mask, width, height).unwrap();
             let exact = reference::signed_distance(&mask, width as usize, height as usize);
-            let errors: Vec<f64> = gpu.iter().zip(&exact).map(|(&g, &e)| (g as f64 - e).abs()).collect();
+            let errors: Vec<f64> = gpu
+                .iter()
+                .zip(&exact)
+                .map(|(&g, &e)| (g as f64 - e).abs())
+                .collect();
             let close = errors.iter().filter(|&&e| e <= 1e-3).count();
             let worst = errors.iter().copied().fold(0.0, f64::max);
-            eprintln!("{name} {width}x{height}: {close}/{} exact, worst {worst:.4} px", errors.len());
-            assert!(close as f64 >= 0.99 * errors.len() as f64, "{name}: only {close} of {} pixels exact", errors.len());
+            eprintln!(
+                "{name} {width}x{height}: {close}/{} exact, worst {worst:.4} px",
+                errors.len()
+            );
+            assert!(
+                close as f64 >= 0.99 * errors.len() as f64,
+                "{name}: only {close} of {} pixels exact",
+                errors.len()
+            );
             assert!(worst <= 1.0, "{name}: an error of {worst} px");
             // Signs: negative inside, positive outside.
             for (m, g) in mask.iter().zip(&gpu) {
@@ -58,7 +84,9 @@ fn a_mask_of_the_wrong_size_is_an_error() {
     let dir = std::env::temp_dir().join(format!("vkdr-mask-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join("mask.png");
-    image::GrayImage::from_pixel(20, 10, image::Luma([255])).save(&path).unwrap();
+    image::GrayImage::from_pixel(20, 10, image::Luma([255]))
+        .save(&path)
+        .unwrap();
     let err = load_mask(&path, 10, 20).unwrap_err().to_string();
     assert!(err.contains("20x10") && err.contains("10x20"), "{err}");
     let mask = load_mask(&path, 20, 10).unwrap();

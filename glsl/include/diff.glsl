@@ -5,9 +5,9 @@
 // The including shader declares, before the include:
 //   buffers  positions[] (float x, y, z), triangles[] (uint), neighbours[] (uint, the
 //            triangle across the edge opposite corner k of triangle t at 3 t + k, or
-//            NO_NEIGHBOUR), views[] (ViewData);
-//   image    ids (r32ui uimage2DArray: triangle id + 1);
-// and `uint view` is gl_GlobalInvocationID.z.
+//            NO_NEIGHBOUR), views[] (ViewData), ids[] (triangle id + 1 per pixel,
+//            [view][row][column]);
+// and push constants pc.width, pc.height.
 #include "views.glsl"
 #include "edges.glsl"
 
@@ -43,8 +43,12 @@ vec2 pixel_ndc(ivec2 pixel, ViewData vd) {
     return (vec2(pixel) + 0.5) * 2.0 / vd.size - 1.0;
 }
 
+uint pixel_index(ivec2 pixel, uint view) {
+    return (view * pc.height + uint(pixel.y)) * pc.width + uint(pixel.x);
+}
+
 uint id_at(ivec2 pixel, uint view) {
-    return imageLoad(ids, ivec3(pixel, int(view))).x;
+    return ids[pixel_index(pixel, view)];
 }
 
 // Camera-space depth of the pixel centre on triangle `tri`.
@@ -136,8 +140,10 @@ Pair make_pair(ViewData vd, uint view, ivec2 p, ivec2 q, bool along_x) {
     if (id_p == id_q) return pair;
     vec2 np = pixel_ndc(p, vd);
     vec2 nq = pixel_ndc(q, vd);
-    float zp = id_p == 0u ? BACKGROUND_DEPTH : depth_on(load_triangle(vd, id_p - 1u), np);
-    float zq = id_q == 0u ? BACKGROUND_DEPTH : depth_on(load_triangle(vd, id_q - 1u), nq);
+    float zp = BACKGROUND_DEPTH;
+    float zq = BACKGROUND_DEPTH;
+    if (id_p != 0u) zp = depth_on(load_triangle(vd, id_p - 1u), np);
+    if (id_q != 0u) zq = depth_on(load_triangle(vd, id_q - 1u), nq);
     bool p_front = zp <= zq;
     pair.f = p_front ? p : q;
     pair.g = p_front ? q : p;

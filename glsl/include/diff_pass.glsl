@@ -1,20 +1,31 @@
-// Declarations shared by antialias.comp and antialias_backward.comp: bindings 0-9, push
-// constants, and the per-pixel loss gradient dL/dA.
+// Declarations shared by the per-pixel passes (classify.comp, antialias.comp,
+// antialias_backward.comp): bindings, push constants, the per-pixel loss gradient dL/dA.
+//
+// classify.comp handles every pixel whose neighbourhood shows one triangle (or background)
+// and needs no interpolation, and appends the others (silhouette and occlusion pixels,
+// and with attributes every covered pixel) to the work list; the other two passes run
+// over that list only, so their cost follows the silhouette's length, not the image's
+// area.
 #extension GL_EXT_shader_atomic_float : require
+#extension GL_KHR_shader_subgroup_arithmetic : require
+#extension GL_KHR_shader_subgroup_basic : require
+#extension GL_KHR_shader_subgroup_ballot : require
+#extension GL_KHR_shader_subgroup_vote : require
 #include "views.glsl"
-
-layout(local_size_x = 8, local_size_y = 8) in;
 
 layout(set = 0, binding = 0, std430) readonly buffer Positions { float positions[]; };
 layout(set = 0, binding = 1, std430) readonly buffer Triangles { uint triangles[]; };
 layout(set = 0, binding = 2, std430) readonly buffer Neighbours { uint neighbours[]; };
 layout(set = 0, binding = 3, std430) readonly buffer Views { ViewData views[]; };
 layout(set = 0, binding = 4, std430) readonly buffer Attributes { float attributes[]; };
-layout(set = 0, binding = 5, r32ui) readonly uniform uimage2DArray ids;
+layout(set = 0, binding = 5, std430) readonly buffer Ids { uint ids[]; };                 // [view][y][x]
 layout(set = 0, binding = 6, std430) readonly buffer Observed { float observed[]; };    // [view][y][x][channel]
 layout(set = 0, binding = 7, std430) readonly buffer Distance { float distance_field[]; };  // [view][y][x]
 layout(set = 0, binding = 8, std430) buffer Antialiased { float antialiased[]; };        // [view][y][x][channel]
 layout(set = 0, binding = 9, std430) buffer Stats { float stats[]; };                   // [view][4]
+layout(set = 0, binding = 12, std430) buffer Partials { float partials[]; };            // [view][slot][3]
+layout(set = 0, binding = 13, std430) buffer Work { uint work[]; };                     // pixel indices
+layout(set = 0, binding = 14, std430) buffer WorkCount { uint work_count[]; };          // count, then 3 dispatch args
 
 // Losses (`loss::Loss`): mean squared error, soft IoU, signed-distance-weighted coverage.
 const uint LOSS_MSE = 0u;
@@ -22,17 +33,37 @@ const uint LOSS_IOU = 1u;
 const uint LOSS_DISTANCE = 2u;
 
 // stats[4 view + k]: 0 = sum of per-pixel loss terms, 1 = intersection, 2 = union,
-// 3 = the view's loss (written by loss_finalize.comp).
+// 3 = the view's loss. antialias.comp adds its terms atomically (few pixels); classify.comp
+// leaves one partial sum per subgroup in `partials` (pc.partial_slots slots of 3 per view)
+// and loss_finalize.comp adds those and computes the loss.
 
 layout(push_constant, std430) uniform Constants {
     uint channels;  // 0: coverage, else interpolated attributes per vertex
     uint loss;
     uint vertex_count;
-    uint pad;
+    uint width;
+    uint height;
+    uint partial_slots;
 } pc;
 
 #include "diff.glsl"
 #include "shade.glsl"
+
+// The pixel and view of a pixel index (view * height + row) * width + column.
+ivec2 pixel_of(uint index) { return ivec2(index % pc.width, (index / pc.width) % pc.height); }
+uint view_of(uint index) { return index / (pc.width * pc.height); }
+
+void store_antialiased(uint index, vec4 a) {
+    for (uint ch = 0u; ch < image_channels(); ++ch) antialiased[index * image_channels() + ch] = a[ch];
+}
+
+// Whether the pair of pixels showing ids a and b can change the image: with coverage only
+// where one is background (both colours are 1 otherwise, so antialiasing moves nothing).
+bool pair_matters(uint a, uint b) {
+    return a != b && (pc.channels > 0u || (a == 0u) != (b == 0u));
+}
+
+const ivec2 STEPS[4] = ivec2[4](ivec2(1, 0), ivec2(0, 1), ivec2(-1, 0), ivec2(0, -1));
 
 vec4 load_antialiased(uint index) {
     vec4 a = vec4(0.0);
@@ -46,9 +77,22 @@ vec4 load_observed(uint index) {
     return o;
 }
 
+// Loss terms of one pixel with antialiased value a: (sum term, intersection, union).
+vec3 loss_terms(uint index, vec4 a) {
+    vec4 o = load_observed(index);
+    float n = float(pc.width * pc.height);
+    if (pc.loss == LOSS_MSE) {
+        vec4 d = a - o;
+        return vec3(dot(d, d) / (n * float(image_channels())), 0.0, 0.0);
+    } else if (pc.loss == LOSS_IOU) {
+        return vec3(0.0, a.x * o.x, a.x + o.x - a.x * o.x);
+    }
+    return vec3(a.x * distance_field[index] / n, 0.0, 0.0);
+}
+
 // dL/dA at one pixel, given the antialiased value A there (after the forward pass).
-vec4 loss_gradient(uint index, uint view, ViewData vd) {
-    float n = vd.size.x * vd.size.y;
+vec4 loss_gradient(uint index, uint view) {
+    float n = float(pc.width * pc.height);
     vec4 a = load_antialiased(index);
     vec4 o = load_observed(index);
     vec4 g = vec4(0.0);

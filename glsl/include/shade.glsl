@@ -21,8 +21,3 @@ vec4 colour_at(ViewData vd, ivec2 pixel, uint id) {
 }
 
 uint image_channels() { return max(pc.channels, 1u); }
-
-uint pixel_index(ivec2 pixel, uint view, ViewData vd) {
-    uint w = uint(vd.size.x), h = uint(vd.size.y);
-    return (view * h + uint(pixel.y)) * w + uint(pixel.x);
-}

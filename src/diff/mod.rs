@@ -16,12 +16,15 @@ use bytemuck::{Pod, Zeroable};
 
 use crate::error::{Error, Result};
 use crate::gpu::{
-    spirv, Binding, BindingKind, Buffer, BufferKind, ComputePipeline, Context, ImageState, Recorder,
+    spirv, Binding, BindingKind, Buffer, BufferKind, ComputePipeline, Context, ImageState,
+    Recorder, Timestamps,
 };
 use crate::loss::{DistanceField, Loss};
 use crate::mesh::Mesh;
 use crate::raster::{Gbuffer, MeshBuffers, Outputs, Rasterizer, View, ViewBuffers};
 
+const CLASSIFY: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/classify.comp.spv"));
+const WORK_ARGS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/work_args.comp.spv"));
 const ANTIALIAS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/antialias.comp.spv"));
 const BACKWARD: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/antialias_backward.comp.spv"));
 const FINALIZE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/loss_finalize.comp.spv"));
@@ -35,11 +38,15 @@ pub const NO_NEIGHBOUR: u32 = u32::MAX;
 /// than two triangles. Edges are matched by vertex index (welded meshes).
 pub fn neighbours(mesh: &Mesh) -> Vec<u32> {
     let triangles = mesh.triangles();
-    let mut edges: HashMap<(u32, u32), Vec<(u32, usize)>> = HashMap::with_capacity(triangles.len() * 3 / 2);
+    let mut edges: HashMap<(u32, u32), Vec<(u32, usize)>> =
+        HashMap::with_capacity(triangles.len() * 3 / 2);
     for (t, tri) in triangles.iter().enumerate() {
         for k in 0..3 {
             let (a, b) = (tri[(k + 1) % 3], tri[(k + 2) % 3]);
-            edges.entry((a.min(b), a.max(b))).or_default().push((t as u32, k));
+            edges
+                .entry((a.min(b), a.max(b)))
+                .or_default()
+                .push((t as u32, k));
         }
     }
     let mut out = vec![NO_NEIGHBOUR; triangles.len() * 3];
@@ -58,12 +65,16 @@ struct PassConstants {
     channels: u32,
     loss: u32,
     vertex_count: u32,
-    pad: u32,
+    width: u32,
+    height: u32,
+    partial_slots: u32,
 }
 
 /// The pipelines of the differentiable renderer (create once, use for many scenes).
 pub struct DiffRenderer {
     rasterizer: Rasterizer,
+    classify: ComputePipeline,
+    work_args: ComputePipeline,
     antialias: ComputePipeline,
     backward: ComputePipeline,
     finalize: ComputePipeline,
@@ -74,14 +85,51 @@ pub struct DiffRenderer {
 impl DiffRenderer {
     pub fn new(ctx: &Context) -> Result<Self> {
         let pass_bytes = std::mem::size_of::<PassConstants>() as u32;
-        let mut bindings = vec![BindingKind::StorageBuffer; 12];
-        bindings[5] = BindingKind::StorageImage;
+        let bindings = [BindingKind::StorageBuffer; 15];
         Ok(Self {
             rasterizer: Rasterizer::new(ctx)?,
-            antialias: ComputePipeline::new(ctx, "antialias", &spirv(ANTIALIAS)?, &bindings[..10], pass_bytes)?,
-            backward: ComputePipeline::new(ctx, "antialias backward", &spirv(BACKWARD)?, &bindings, pass_bytes)?,
-            finalize: ComputePipeline::new(ctx, "loss finalize", &spirv(FINALIZE)?, &[BindingKind::StorageBuffer], 4)?,
-            pose: ComputePipeline::new(ctx, "pose gradient", &spirv(POSE)?, &[BindingKind::StorageBuffer; 5], 4)?,
+            classify: ComputePipeline::new(
+                ctx,
+                "classify",
+                &spirv(CLASSIFY)?,
+                &bindings,
+                pass_bytes,
+            )?,
+            work_args: ComputePipeline::new(
+                ctx,
+                "work arguments",
+                &spirv(WORK_ARGS)?,
+                &bindings[..1],
+                0,
+            )?,
+            antialias: ComputePipeline::new(
+                ctx,
+                "antialias",
+                &spirv(ANTIALIAS)?,
+                &bindings,
+                pass_bytes,
+            )?,
+            backward: ComputePipeline::new(
+                ctx,
+                "antialias backward",
+                &spirv(BACKWARD)?,
+                &bindings,
+                pass_bytes,
+            )?,
+            finalize: ComputePipeline::new(
+                ctx,
+                "loss finalize",
+                &spirv(FINALIZE)?,
+                &bindings[..2],
+                8,
+            )?,
+            pose: ComputePipeline::new(
+                ctx,
+                "pose gradient",
+                &spirv(POSE)?,
+                &[BindingKind::StorageBuffer; 5],
+                4,
+            )?,
             distance: DistanceField::new(ctx)?,
         })
     }
@@ -117,11 +165,15 @@ pub struct Scene {
     distance_scratch: Option<[Buffer; 2]>,
     antialiased: Buffer,
     stats: Buffer,
+    partials: Buffer,
+    partial_slots: u32,
+    work: Buffer,
+    work_count: Buffer,
     grad_camera: Buffer,
     grad_attributes: Buffer,
     grad_object: Buffer,
     grad_pose: Buffer,
-    ids_readback: Buffer,
+    ids: Buffer,
     loss: Loss,
     channels: u32,
 }
@@ -153,7 +205,9 @@ impl Scene {
         let (attributes, channels) = match desc.attributes {
             None => (vec![0.0f32], 0),
             Some((values, channels)) => {
-                if !(1..=4).contains(&channels) || values.len() != desc.mesh.vertex_count() * channels as usize {
+                if !(1..=4).contains(&channels)
+                    || values.len() != desc.mesh.vertex_count() * channels as usize
+                {
                     return Err(Error::InvalidInput(format!(
                         "{} attribute values for {} vertices x {channels} channels (1 to 4)",
                         values.len(),
@@ -177,11 +231,16 @@ impl Scene {
             )));
         }
         if desc.observed.iter().any(|v| !v.is_finite()) {
-            return Err(Error::InvalidInput("observed images contain NaN or Inf".into()));
+            return Err(Error::InvalidInput(
+                "observed images contain NaN or Inf".into(),
+            ));
         }
         let vertices = desc.mesh.vertex_count() as u64;
         let device = |name, bytes| Buffer::new(ctx, name, bytes, BufferKind::Device);
         let with_distance = desc.loss == Loss::Distance;
+        // One partial loss sum per subgroup of every 8 x 8 workgroup.
+        let subgroups = 64u32.div_ceil(ctx.info().subgroup_size.max(1));
+        let partial_slots = w.div_ceil(8) * h.div_ceil(8) * subgroups;
         Ok(Self {
             gbuffer: Gbuffer::new(ctx, w, h, n, Outputs::Ids)?,
             neighbours: Buffer::from_slice(ctx, "neighbours", &neighbours(desc.mesh))?,
@@ -190,17 +249,24 @@ impl Scene {
             distance: device("distance field", if with_distance { pixels * 4 } else { 4 })?,
             distance_scratch: if with_distance {
                 let bytes = DistanceField::scratch_bytes(w, h, n);
-                Some([device("jump flooding a", bytes)?, device("jump flooding b", bytes)?])
+                Some([
+                    device("jump flooding a", bytes)?,
+                    device("jump flooding b", bytes)?,
+                ])
             } else {
                 None
             },
             antialiased: device("antialiased", pixels * image_channels * 4)?,
             stats: device("loss stats", n as u64 * 16)?,
+            partials: device("loss partial sums", n as u64 * partial_slots as u64 * 12)?,
+            partial_slots,
+            work: device("work list", pixels * 4)?,
+            work_count: device("work count", 16)?,
             grad_camera: device("camera gradients", n as u64 * vertices * 12)?,
             grad_attributes: device("attribute gradients", vertices * channels as u64 * 4)?,
             grad_object: device("vertex gradients", vertices * 12)?,
             grad_pose: device("pose gradients", n as u64 * 24)?,
-            ids_readback: Buffer::new(ctx, "readback ids", pixels * 4, BufferKind::Readback)?,
+            ids: device("triangle ids", pixels * 4)?,
             mesh,
             views,
             loss: desc.loss,
@@ -227,26 +293,57 @@ impl Scene {
     pub fn record_prepare(&self, renderer: &DiffRenderer, rec: &mut Recorder) -> Result<()> {
         if let Some([a, b]) = &self.distance_scratch {
             let shape = (self.views.width(), self.views.height(), self.views.count());
-            renderer.distance.record(rec, &self.observed, [a, b], &self.distance, shape)?;
+            renderer
+                .distance
+                .record(rec, &self.observed, [a, b], &self.distance, shape)?;
         }
         Ok(())
     }
 
     /// Records one evaluation: rasterize, shade, antialias, loss, backward, pose
     /// reduction. Results are in the scene's buffers once the submission completes.
-    pub fn record(&self, renderer: &DiffRenderer, rec: &mut Recorder) -> Result<()> {
-        for buffer in [&self.stats, &self.grad_camera, &self.grad_attributes, &self.grad_object, &self.grad_pose] {
+    /// With `timing`, timestamps 0, 1, 2 mark the start, the end of the forward pass
+    /// (through the loss) and the end of the backward pass (through the pose gradient).
+    pub fn record(
+        &self,
+        renderer: &DiffRenderer,
+        rec: &mut Recorder,
+        timing: Option<&Timestamps>,
+    ) -> Result<()> {
+        if let Some(t) = timing {
+            rec.reset_timestamps(t);
+            rec.timestamp(t, 0);
+        }
+        for buffer in [
+            &self.stats,
+            &self.work_count,
+            &self.grad_camera,
+            &self.grad_attributes,
+            &self.grad_object,
+            &self.grad_pose,
+        ] {
             rec.fill_buffer(buffer, 0);
         }
-        renderer.rasterizer.draw(rec, &self.mesh, &self.views, &self.gbuffer)?;
-        rec.transition(&[&self.gbuffer.ids], ImageState::Attachment, ImageState::Storage);
+        renderer
+            .rasterizer
+            .draw(rec, &self.mesh, &self.views, &self.gbuffer)?;
+        // The passes below read ids from a buffer: plain loads are much cheaper than
+        // storage-image loads on CPU drivers, and the copy is a memcpy.
+        rec.transition(
+            &[&self.gbuffer.ids],
+            ImageState::Attachment,
+            ImageState::TransferSrc,
+        );
+        rec.copy_image_to_buffer(&self.gbuffer.ids, &self.ids)?;
         rec.memory_barrier();
 
         let constants = PassConstants {
             channels: self.channels,
             loss: self.loss.code(),
             vertex_count: self.mesh.vertex_count(),
-            pad: 0,
+            width: self.views.width(),
+            height: self.views.height(),
+            partial_slots: self.partial_slots,
         };
         let bindings = [
             Binding::buffer(self.mesh.positions()),
@@ -254,31 +351,54 @@ impl Scene {
             Binding::buffer(&self.neighbours),
             Binding::buffer(self.views.views()),
             Binding::buffer(&self.attributes),
-            Binding::Image(&self.gbuffer.ids),
+            Binding::buffer(&self.ids),
             Binding::buffer(&self.observed),
             Binding::buffer(&self.distance),
             Binding::buffer(&self.antialiased),
             Binding::buffer(&self.stats),
             Binding::buffer(&self.grad_camera),
             Binding::buffer(&self.grad_attributes),
+            Binding::buffer(&self.partials),
+            Binding::buffer(&self.work),
+            Binding::buffer(&self.work_count),
         ];
         let (w, h, n) = (self.views.width(), self.views.height(), self.views.count());
-        rec.bind_compute(&renderer.antialias);
-        rec.push_compute_bindings(&renderer.antialias, &bindings[..10]);
-        rec.compute_constants(&renderer.antialias, &constants);
+        rec.bind_compute(&renderer.classify);
+        rec.push_compute_bindings(&renderer.classify, &bindings);
+        rec.compute_constants(&renderer.classify, &constants);
         rec.dispatch(w.div_ceil(8), h.div_ceil(8), n);
         rec.memory_barrier();
 
-        rec.bind_compute(&renderer.finalize);
-        rec.push_compute_bindings(&renderer.finalize, &[Binding::buffer(&self.stats)]);
-        rec.compute_constants(&renderer.finalize, &self.loss.code());
-        rec.dispatch(n, 1, 1);
+        rec.bind_compute(&renderer.work_args);
+        rec.push_compute_bindings(&renderer.work_args, &[Binding::buffer(&self.work_count)]);
+        rec.dispatch(1, 1, 1);
         rec.memory_barrier();
+
+        rec.bind_compute(&renderer.antialias);
+        rec.push_compute_bindings(&renderer.antialias, &bindings);
+        rec.compute_constants(&renderer.antialias, &constants);
+        rec.dispatch_indirect(&self.work_count, 4);
+        rec.memory_barrier();
+
+        rec.bind_compute(&renderer.finalize);
+        rec.push_compute_bindings(
+            &renderer.finalize,
+            &[
+                Binding::buffer(&self.stats),
+                Binding::buffer(&self.partials),
+            ],
+        );
+        rec.compute_constants(&renderer.finalize, &[self.loss.code(), self.partial_slots]);
+        rec.dispatch(1, 1, n);
+        rec.memory_barrier();
+        if let Some(t) = timing {
+            rec.timestamp(t, 1);
+        }
 
         rec.bind_compute(&renderer.backward);
         rec.push_compute_bindings(&renderer.backward, &bindings);
         rec.compute_constants(&renderer.backward, &constants);
-        rec.dispatch(w.div_ceil(8), h.div_ceil(8), n);
+        rec.dispatch_indirect(&self.work_count, 4);
         rec.memory_barrier();
 
         rec.bind_compute(&renderer.pose);
@@ -295,13 +415,10 @@ impl Scene {
         rec.compute_constants(&renderer.pose, &self.mesh.vertex_count());
         rec.dispatch(self.mesh.vertex_count().div_ceil(64).clamp(1, 256), 1, n);
         rec.memory_barrier();
+        if let Some(t) = timing {
+            rec.timestamp(t, 2);
+        }
         Ok(())
-    }
-
-    /// Records a copy of the triangle ids (for [`Scene::read`]'s `ids`).
-    pub fn record_ids_readback(&self, rec: &mut Recorder) -> Result<()> {
-        rec.transition(&[&self.gbuffer.ids], ImageState::Storage, ImageState::TransferSrc);
-        rec.copy_image_to_buffer(&self.gbuffer.ids, &self.ids_readback)
     }
 
     /// The buffer holding each view's loss at float index 4 view + 3.
@@ -329,9 +446,13 @@ impl Scene {
             loss: (0..n).map(|k| stats[4 * k + 3]).collect(),
             vertex_gradient: self.grad_object.read_range::<[f32; 3]>(0, v)?,
             pose_gradient: self.grad_pose.read_range::<[f32; 6]>(0, n)?,
-            attribute_gradient: self.grad_attributes.read_range::<f32>(0, v * self.channels as usize)?,
-            antialiased: self.antialiased.read_range::<f32>(0, pixels * self.channels.max(1) as usize)?,
-            ids: self.ids_readback.read_range::<u32>(0, pixels)?,
+            attribute_gradient: self
+                .grad_attributes
+                .read_range::<f32>(0, v * self.channels as usize)?,
+            antialiased: self
+                .antialiased
+                .read_range::<f32>(0, pixels * self.channels.max(1) as usize)?,
+            ids: self.ids.read_range::<u32>(0, pixels)?,
         })
     }
 
@@ -339,9 +460,13 @@ impl Scene {
     /// only; after a submission that included [`Scene::record_prepare`]).
     pub fn read_distance_field(&mut self) -> Result<Vec<f32>> {
         if self.loss != Loss::Distance {
-            return Err(Error::InvalidInput("only the distance loss has a distance field".into()));
+            return Err(Error::InvalidInput(
+                "only the distance loss has a distance field".into(),
+            ));
         }
-        let pixels = self.views.count() as usize * self.views.width() as usize * self.views.height() as usize;
+        let pixels = self.views.count() as usize
+            * self.views.width() as usize
+            * self.views.height() as usize;
         self.distance.read_range::<f32>(0, pixels)
     }
 
@@ -349,8 +474,7 @@ impl Scene {
     pub fn evaluate(&mut self, ctx: &Context, renderer: &DiffRenderer) -> Result<Evaluation> {
         let mut rec = Recorder::new(ctx)?;
         self.record_prepare(renderer, &mut rec)?;
-        self.record(renderer, &mut rec)?;
-        self.record_ids_readback(&mut rec)?;
+        self.record(renderer, &mut rec, None)?;
         ctx.submit_and_wait(rec)?;
         self.read()
     }

@@ -67,11 +67,18 @@ fn cross2(a: DVec2, b: DVec2) -> f64 {
 }
 
 fn edge_function(ci: DVec3, cj: DVec3, p: DVec2) -> f64 {
-    cross2(DVec2::new(ci.x, ci.y) - p * ci.z, DVec2::new(cj.x, cj.y) - p * cj.z)
+    cross2(
+        DVec2::new(ci.x, ci.y) - p * ci.z,
+        DVec2::new(cj.x, cj.y) - p * cj.z,
+    )
 }
 
 fn edge_functions(c: &[DVec3; 3], p: DVec2) -> [f64; 3] {
-    [edge_function(c[1], c[2], p), edge_function(c[2], c[0], p), edge_function(c[0], c[1], p)]
+    [
+        edge_function(c[1], c[2], p),
+        edge_function(c[2], c[0], p),
+        edge_function(c[0], c[1], p),
+    ]
 }
 
 struct Crossing {
@@ -171,9 +178,14 @@ impl ViewModel<'_> {
             }
             let (edge, alpha) = exit?;
             let next = self.problem.neighbours[3 * current + edge];
-            let silhouette = next == NO_NEIGHBOUR || Self::facing(&self.tri(next as usize)) != Self::facing(&tri);
+            let silhouette = next == NO_NEIGHBOUR
+                || Self::facing(&self.tri(next as usize)) != Self::facing(&tri);
             if silhouette {
-                return Some(Crossing { triangle: current, edge, alpha });
+                return Some(Crossing {
+                    triangle: current,
+                    edge,
+                    alpha,
+                });
             }
             previous = Some(current as u32);
             current = next as usize;
@@ -195,14 +207,29 @@ impl ViewModel<'_> {
             return None;
         }
         let (np, nq) = (self.ndc(p), self.ndc(q));
-        let depth = |id: u32, n: DVec2| if id == 0 { f64::INFINITY } else { self.depth(id as usize - 1, n) };
+        let depth = |id: u32, n: DVec2| {
+            if id == 0 {
+                f64::INFINITY
+            } else {
+                self.depth(id as usize - 1, n)
+            }
+        };
         let p_front = depth(id_p, np) <= depth(id_q, nq);
-        let (f, g, front_id, pf, pb) = if p_front { (p, q, id_p, np, nq) } else { (q, p, id_q, nq, np) };
+        let (f, g, front_id, pf, pb) = if p_front {
+            (p, q, id_p, np, nq)
+        } else {
+            (q, p, id_q, nq, np)
+        };
         let crossing = self.find_crossing(front_id as usize - 1, pf, pb)?;
         if self.handled_along_x(&self.tri(crossing.triangle), crossing.edge) != along_x {
             return None;
         }
-        Some(Pair { f, g, affects_g: crossing.alpha > 0.5, weight: (crossing.alpha - 0.5).abs() })
+        Some(Pair {
+            f,
+            g,
+            affects_g: crossing.alpha > 0.5,
+            weight: (crossing.alpha - 0.5).abs(),
+        })
     }
 
     fn antialiased(&self, channels: usize) -> Vec<f64> {
@@ -220,7 +247,11 @@ impl ViewModel<'_> {
                         continue;
                     }
                     let q = (qx as usize, qy as usize);
-                    let pair = if s < 2 { self.make_pair(p, q, s == 0) } else { self.make_pair(q, p, s == 2) };
+                    let pair = if s < 2 {
+                        self.make_pair(p, q, s == 0)
+                    } else {
+                        self.make_pair(q, p, s == 2)
+                    };
                     let Some(pair) = pair else { continue };
                     let affected = if pair.affects_g { pair.g } else { pair.f };
                     if affected != p {
@@ -253,7 +284,10 @@ pub fn evaluate(problem: &Problem, positions: &[DVec3], poses: &[RigidPose]) -> 
             problem,
             camera: *camera,
             ids: &problem.ids[offset_ids..offset_ids + n],
-            cam: positions.iter().map(|&x| pose.rotation * x + pose.translation).collect(),
+            cam: positions
+                .iter()
+                .map(|&x| pose.rotation * x + pose.translation)
+                .collect(),
             scale: DVec2::new(2.0 * camera.fx / w, 2.0 * camera.fy / h),
             shift: DVec2::new(2.0 * camera.cx / w - 1.0, 2.0 * camera.cy / h - 1.0),
         };
@@ -264,10 +298,20 @@ pub fn evaluate(problem: &Problem, positions: &[DVec3], poses: &[RigidPose]) -> 
         } else {
             &[][..]
         };
-        view_losses.push(loss_reference::loss(problem.loss, &a, observed, distance, channels));
+        view_losses.push(loss_reference::loss(
+            problem.loss,
+            &a,
+            observed,
+            distance,
+            channels,
+        ));
         antialiased.extend(a);
         offset_ids += n;
         offset_distance += n;
     }
-    Output { loss: view_losses.iter().sum(), view_losses, antialiased }
+    Output {
+        loss: view_losses.iter().sum(),
+        view_losses,
+        antialiased,
+    }
 }

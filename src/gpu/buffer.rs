@@ -35,7 +35,9 @@ impl Buffer {
             | vk::BufferUsageFlags::TRANSFER_SRC
             | vk::BufferUsageFlags::TRANSFER_DST
             | match kind {
-                BufferKind::Device => vk::BufferUsageFlags::INDEX_BUFFER,
+                BufferKind::Device => {
+                    vk::BufferUsageFlags::INDEX_BUFFER | vk::BufferUsageFlags::INDIRECT_BUFFER
+                }
                 _ => vk::BufferUsageFlags::empty(),
             };
         let device = ctx.device();

@@ -330,12 +330,14 @@ impl Recorder {
         }
     }
 
-    /// Dispatches enough workgroups of `local_size` invocations (at most 4096 in x) for
-    /// shaders that loop over `items` with a grid stride (`glsl/include/linear.glsl`),
-    /// once per layer in z.
-    pub fn dispatch_linear(&mut self, items: u64, local_size: u32, layers: u32) {
-        let groups = items.div_ceil(local_size as u64).clamp(1, 4096);
-        self.dispatch(groups as u32, 1, layers);
+    /// Dispatches with workgroup counts (3 x u32) that an earlier pass wrote into `args`
+    /// at byte `offset` (a multiple of 4).
+    pub fn dispatch_indirect(&mut self, args: &Buffer, offset: u64) {
+        // SAFETY: a compute pipeline is bound; `args` has indirect usage (device buffers).
+        unsafe {
+            self.device()
+                .cmd_dispatch_indirect(self.raw, args.raw, offset)
+        };
     }
 
     pub fn dispatch(&mut self, x: u32, y: u32, z: u32) {

@@ -57,6 +57,7 @@ pub struct DeviceInfo {
     pub min_storage_buffer_offset_alignment: u64,
     pub max_compute_workgroup_invocations: u32,
     pub max_push_constants_size: u32,
+    pub subgroup_size: u32,
     pub timestamp_period_ns: f32,
     pub features: Vec<(&'static str, bool)>,
 }
@@ -501,7 +502,10 @@ fn describe(instance: &ash::Instance, pd: vk::PhysicalDevice, index: usize) -> D
     // SAFETY: valid handles.
     unsafe {
         let mut driver = vk::PhysicalDeviceDriverProperties::default();
-        let mut props2 = vk::PhysicalDeviceProperties2::default().push_next(&mut driver);
+        let mut subgroup = vk::PhysicalDeviceSubgroupProperties::default();
+        let mut props2 = vk::PhysicalDeviceProperties2::default()
+            .push_next(&mut driver)
+            .push_next(&mut subgroup);
         instance.get_physical_device_properties2(pd, &mut props2);
         let props = props2.properties;
         let limits = props.limits;
@@ -530,6 +534,7 @@ fn describe(instance: &ash::Instance, pd: vk::PhysicalDevice, index: usize) -> D
             min_storage_buffer_offset_alignment: limits.min_storage_buffer_offset_alignment,
             max_compute_workgroup_invocations: limits.max_compute_work_group_invocations,
             max_push_constants_size: limits.max_push_constants_size,
+            subgroup_size: subgroup.subgroup_size,
             timestamp_period_ns: limits.timestamp_period,
             features: query_features(instance, pd).features,
         }

@@ -11,7 +11,9 @@ use std::path::Path;
 use bytemuck::{Pod, Zeroable};
 
 use crate::error::{Error, Result};
-use crate::gpu::{spirv, Binding, BindingKind, Buffer, BufferKind, ComputePipeline, Context, Recorder};
+use crate::gpu::{
+    spirv, Binding, BindingKind, Buffer, BufferKind, ComputePipeline, Context, Recorder,
+};
 
 const SEED: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/distance_seed.comp.spv"));
 const JUMP: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/distance_jump.comp.spv"));
@@ -57,7 +59,9 @@ impl std::str::FromStr for Loss {
             "mse" => Ok(Loss::Mse),
             "iou" => Ok(Loss::Iou),
             "distance" => Ok(Loss::Distance),
-            other => Err(Error::InvalidInput(format!("unknown loss '{other}' (mse, iou, distance)"))),
+            other => Err(Error::InvalidInput(format!(
+                "unknown loss '{other}' (mse, iou, distance)"
+            ))),
         }
     }
 }
@@ -79,7 +83,13 @@ pub fn load_mask(path: &Path, width: u32, height: u32) -> Result<Vec<f32>> {
     let rgba = image.to_rgba8();
     Ok(rgba
         .pixels()
-        .map(|p| if p.0.iter().any(|&c| c != 0) { 1.0 } else { 0.0 })
+        .map(|p| {
+            if p.0.iter().any(|&c| c != 0) {
+                1.0
+            } else {
+                0.0
+            }
+        })
         .collect())
 }
 
@@ -129,12 +139,21 @@ impl DistanceField {
     ) -> Result<()> {
         let needed = Self::scratch_bytes(width, height, views);
         if scratch.iter().any(|b| b.size() < needed) || distance.size() < needed / 2 {
-            return Err(Error::InvalidInput("distance field buffers are too small".into()));
+            return Err(Error::InvalidInput(
+                "distance field buffers are too small".into(),
+            ));
         }
         let groups = (width.div_ceil(8), height.div_ceil(8));
-        let mut constants = DistanceConstants { width, height, step: 0 };
+        let mut constants = DistanceConstants {
+            width,
+            height,
+            step: 0,
+        };
         rec.bind_compute(&self.seed);
-        rec.push_compute_bindings(&self.seed, &[Binding::buffer(masks), Binding::buffer(scratch[0])]);
+        rec.push_compute_bindings(
+            &self.seed,
+            &[Binding::buffer(masks), Binding::buffer(scratch[0])],
+        );
         rec.compute_constants(&self.seed, &constants);
         rec.dispatch(groups.0, groups.1, 2 * views);
         rec.memory_barrier();
@@ -153,7 +172,10 @@ impl DistanceField {
             constants.step = step as i32;
             rec.push_compute_bindings(
                 &self.jump,
-                &[Binding::buffer(scratch[current]), Binding::buffer(scratch[1 - current])],
+                &[
+                    Binding::buffer(scratch[current]),
+                    Binding::buffer(scratch[1 - current]),
+                ],
             );
             rec.compute_constants(&self.jump, &constants);
             rec.dispatch(groups.0, groups.1, 2 * views);
@@ -163,7 +185,11 @@ impl DistanceField {
         rec.bind_compute(&self.finish);
         rec.push_compute_bindings(
             &self.finish,
-            &[Binding::buffer(masks), Binding::buffer(scratch[current]), Binding::buffer(distance)],
+            &[
+                Binding::buffer(masks),
+                Binding::buffer(scratch[current]),
+                Binding::buffer(distance),
+            ],
         );
         rec.compute_constants(&self.finish, &constants);
         rec.dispatch(groups.0, groups.1, views);
@@ -177,7 +203,13 @@ impl DistanceField {
     }
 
     /// One-shot convenience: the signed distance field of one mask (row-major).
-    pub fn compute(&self, ctx: &Context, mask: &[f32], width: u32, height: u32) -> Result<Vec<f32>> {
+    pub fn compute(
+        &self,
+        ctx: &Context,
+        mask: &[f32],
+        width: u32,
+        height: u32,
+    ) -> Result<Vec<f32>> {
         if mask.len() != (width * height) as usize {
             return Err(Error::InvalidInput(format!(
                 "mask of {} values is not {width}x{height}",

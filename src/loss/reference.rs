@@ -20,7 +20,11 @@ pub fn signed_distance(mask: &[f32], width: usize, height: usize) -> Vec<f64> {
                 .filter(|p| p.2 != inside)
                 .map(|p| ((p.0 - x).powi(2) + (p.1 - y).powi(2)).sqrt())
                 .fold(f64::INFINITY, f64::min);
-            let d = if nearest.is_finite() { nearest - 0.5 } else { (width + height) as f64 };
+            let d = if nearest.is_finite() {
+                nearest - 0.5
+            } else {
+                (width + height) as f64
+            };
             if inside {
                 -d
             } else {
@@ -32,7 +36,13 @@ pub fn signed_distance(mask: &[f32], width: usize, height: usize) -> Vec<f64> {
 
 /// The loss of one view: `rendered` and `observed` hold `channels` values per pixel,
 /// `distance` one (only for [`Loss::Distance`]).
-pub fn loss(kind: Loss, rendered: &[f64], observed: &[f64], distance: &[f64], channels: usize) -> f64 {
+pub fn loss(
+    kind: Loss,
+    rendered: &[f64],
+    observed: &[f64],
+    distance: &[f64],
+    channels: usize,
+) -> f64 {
     let n = (rendered.len() / channels) as f64;
     match kind {
         Loss::Mse => {
@@ -45,13 +55,24 @@ pub fn loss(kind: Loss, rendered: &[f64], observed: &[f64], distance: &[f64], ch
         }
         Loss::Iou => {
             let intersection: f64 = rendered.iter().zip(observed).map(|(a, o)| a * o).sum();
-            let union: f64 = rendered.iter().zip(observed).map(|(a, o)| a + o - a * o).sum();
+            let union: f64 = rendered
+                .iter()
+                .zip(observed)
+                .map(|(a, o)| a + o - a * o)
+                .sum();
             if union > 0.0 {
                 1.0 - intersection / union
             } else {
                 0.0
             }
         }
-        Loss::Distance => rendered.iter().zip(distance).map(|(a, s)| a * s).sum::<f64>() / n,
+        Loss::Distance => {
+            rendered
+                .iter()
+                .zip(distance)
+                .map(|(a, s)| a * s)
+                .sum::<f64>()
+                / n
+        }
     }
 }

@@ -1,5 +1,7 @@
 //! The `vkdr` command line: device information, G-buffer renders and the demo.
 
+mod bench;
+mod grad;
 mod pictures;
 
 use std::path::{Path, PathBuf};
@@ -32,6 +34,26 @@ enum Command {
     Info,
     /// Render a mesh's G-buffer (triangle ids, barycentrics, depth) and pictures of it.
     Render(RenderArgs),
+    /// Loss and exact gradients (vertices and pose) of a render against an observed mask.
+    Grad(GradArgs),
+    /// Time forward and backward passes against a plain colour render (1e3..1e6 vertices).
+    Bench {
+        /// Image width and height in pixels.
+        #[arg(long, default_value_t = 1024)]
+        size: u32,
+        /// Timed repeats per mesh (after one warm-up); medians are reported.
+        #[arg(long, default_value_t = 10)]
+        repeats: usize,
+        /// Skip meshes with more vertices than this.
+        #[arg(long, default_value_t = 1_000_000)]
+        max_vertices: usize,
+        /// Loss of the timed iteration.
+        #[arg(long, default_value = "mse")]
+        loss: String,
+        /// Output directory for bench.csv, bench.json and bench.png.
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// The quick start: generate a mesh, render it from a few views, write the pictures.
     Demo {
         /// Where to write the results.
@@ -64,11 +86,46 @@ struct RenderArgs {
     out: PathBuf,
 }
 
+#[derive(clap::Args)]
+struct GradArgs {
+    /// OBJ file (vertex_grad.npy follows its vertex order).
+    mesh: PathBuf,
+    /// Observed mask PNG (nonzero = object), of exactly --size.
+    #[arg(long)]
+    observed: PathBuf,
+    /// Pinhole intrinsics in pixels: fx,fy,cx,cy.
+    #[arg(long)]
+    intrinsics: String,
+    /// Image size WxH.
+    #[arg(long)]
+    size: String,
+    /// Object-to-camera pose tx,ty,tz,rx,ry,rz (metres; axis-angle in radians).
+    #[arg(long, allow_hyphen_values = true)]
+    pose: String,
+    /// Near clipping distance in metres.
+    #[arg(long, default_value_t = Camera::DEFAULT_NEAR)]
+    near: f64,
+    /// mse | iou | distance
+    #[arg(long, default_value = "mse")]
+    loss: String,
+    /// Output directory.
+    #[arg(long)]
+    out: PathBuf,
+}
+
 fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Info => info(),
         Command::Render(args) => render(&args),
+        Command::Grad(args) => grad(&args),
+        Command::Bench {
+            size,
+            repeats,
+            max_vertices,
+            loss,
+            out,
+        } => bench(size, repeats, max_vertices, &loss, &out),
         Command::Demo { out } => demo(&out),
     };
     if let Err(e) = result {
@@ -126,15 +183,73 @@ fn info() -> Result<()> {
     Ok(())
 }
 
+/// The camera and pose of the command-line flags.
+fn parse_view(intrinsics: &str, size: &str, pose: &str, near: f64) -> Result<View> {
+    let [fx, fy, cx, cy] = parse_numbers::<4>(intrinsics, "--intrinsics")?;
+    let (width, height) = parse_size(size)?;
+    let mut camera = Camera::new(fx, fy, cx, cy, width, height)?;
+    camera.near = near;
+    let camera = camera.validated()?;
+    let [tx, ty, tz, rx, ry, rz] = parse_numbers::<6>(pose, "--pose")?;
+    Ok(View {
+        camera,
+        pose: Pose::new([tx, ty, tz], [rx, ry, rz])?,
+    })
+}
+
+fn grad(args: &GradArgs) -> Result<()> {
+    let mesh = Mesh::load_obj(&args.mesh)?;
+    let view = parse_view(&args.intrinsics, &args.size, &args.pose, args.near)?;
+    let loss: vkdr::loss::Loss = args.loss.parse()?;
+    let ctx = Context::new()?;
+    let result = grad::run(&ctx, &mesh, view, &args.observed, loss, &args.out)?;
+    println!("loss ({}): {:e}", loss.name(), result.loss[0]);
+    let p = result.pose_gradient[0];
+    println!(
+        "pose gradient: translation [{:e}, {:e}, {:e}], rotation [{:e}, {:e}, {:e}]",
+        p[0], p[1], p[2], p[3], p[4], p[5]
+    );
+    println!(
+        "wrote {0}/loss.json, {0}/vertex_grad.npy, {0}/pose_grad.npy, {0}/gradient.png",
+        args.out.display()
+    );
+    Ok(())
+}
+
+fn bench(size: u32, repeats: usize, max_vertices: usize, loss: &str, out: &Path) -> Result<()> {
+    let ctx = Context::new()?;
+    let device = format!("{} ({})", ctx.info().name, ctx.info().driver_info);
+    println!("device: {device}");
+    let args = bench::BenchArgs {
+        size,
+        repeats: repeats.max(1),
+        max_vertices,
+        loss: loss.parse()?,
+    };
+    let rows = bench::run(&ctx, &args)?;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    bench::write(out, &rows, size, &device)?;
+    println!("vertices,faces,forward_ms,backward_ms,plain_ms,ratio");
+    for r in &rows {
+        println!(
+            "{},{},{:.3},{:.3},{:.3},{:.2}",
+            r.vertices,
+            r.faces,
+            r.forward_ms,
+            r.backward_ms,
+            r.plain_ms,
+            (r.forward_ms + r.backward_ms) / r.plain_ms
+        );
+    }
+    println!("wrote {0}/bench.csv and {0}/bench.json", out.display());
+    Ok(())
+}
+
 fn render(args: &RenderArgs) -> Result<()> {
     let mesh = Mesh::load_obj(&args.mesh)?;
-    let [fx, fy, cx, cy] = parse_numbers::<4>(&args.intrinsics, "--intrinsics")?;
-    let (width, height) = parse_size(&args.size)?;
-    let mut camera = Camera::new(fx, fy, cx, cy, width, height)?;
-    camera.near = args.near;
-    let camera = camera.validated()?;
-    let [tx, ty, tz, rx, ry, rz] = parse_numbers::<6>(&args.pose, "--pose")?;
-    let pose = Pose::new([tx, ty, tz], [rx, ry, rz])?;
+    let view = parse_view(&args.intrinsics, &args.size, &args.pose, args.near)?;
+    let (camera, pose) = (view.camera, view.pose);
+    let (width, height) = (camera.width, camera.height);
 
     let ctx = Context::new()?;
     let rasterizer = Rasterizer::new(&ctx)?;

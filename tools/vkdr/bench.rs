@@ -1,0 +1,184 @@
+//! `vkdr bench`: forward and backward passes of the differentiable renderer against a
+//! plain colour render of the same mesh, at one image size, for spheres of about 1e3 to
+//! 1e6 vertices. GPU times come from timestamps (median over repeats); wall time is a
+//! whole submission with its wait.
+
+use std::path::Path;
+use std::time::Instant;
+
+use anyhow::{Context as _, Result};
+
+use vkdr::diff::{DiffRenderer, Scene, SceneDesc};
+use vkdr::gpu::{Context, Recorder, Timestamps};
+use vkdr::loss::Loss;
+use vkdr::raster::{MeshBuffers, ShadedTarget, View};
+use vkdr::{Camera, Mesh, Pose};
+
+pub struct BenchArgs {
+    pub size: u32,
+    pub repeats: usize,
+    pub max_vertices: usize,
+    pub loss: Loss,
+}
+
+#[derive(Clone, Debug)]
+pub struct Row {
+    pub vertices: usize,
+    pub faces: usize,
+    pub forward_ms: f64,
+    pub backward_ms: f64,
+    pub plain_ms: f64,
+    pub wall_ms: f64,
+    pub plain_wall_ms: f64,
+}
+
+/// A sphere with about `vertices` vertices.
+pub fn sphere(vertices: usize) -> Mesh {
+    let rings = ((vertices as f64 / 1.6).sqrt()).round().max(2.0) as u32;
+    let segments = (vertices as u32 / rings).max(3);
+    Mesh::uv_sphere(0.1, rings, segments)
+}
+
+fn median(mut values: Vec<f64>) -> f64 {
+    values.sort_by(|a, b| a.total_cmp(b));
+    let n = values.len();
+    if n == 0 {
+        f64::NAN
+    } else if n % 2 == 1 {
+        values[n / 2]
+    } else {
+        (values[n / 2 - 1] + values[n / 2]) / 2.0
+    }
+}
+
+pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
+    let renderer = DiffRenderer::new(ctx)?;
+    let size = args.size;
+    let camera = Camera::centered(2.0 * size as f64, size, size)?;
+    let view = View {
+        camera,
+        pose: Pose::new([0.005, -0.004, 0.6], [0.3, 0.2, 0.0])?,
+    };
+    // The observed mask: a disc a little off the sphere's silhouette.
+    let s = size as f64;
+    let mask: Vec<f32> = (0..size)
+        .flat_map(|y| (0..size).map(move |x| (x as f64 + 0.5, y as f64 + 0.5)))
+        .map(|(x, y)| {
+            if (x - 0.53 * s).hypot(y - 0.48 * s) < 0.38 * s {
+                1.0
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let counts: Vec<usize> = [1_000, 10_000, 100_000, 1_000_000]
+        .into_iter()
+        .filter(|&v| v <= args.max_vertices)
+        .collect();
+    let mut rows = Vec::new();
+    for (k, &target) in counts.iter().enumerate() {
+        let mesh = sphere(target);
+        eprintln!(
+            "[{}/{}] {} vertices, {} faces at {size}x{size}, {} repeats",
+            k + 1,
+            counts.len(),
+            mesh.vertex_count(),
+            mesh.triangle_count(),
+            args.repeats
+        );
+        let mut scene = Scene::new(
+            ctx,
+            &SceneDesc {
+                mesh: &mesh,
+                views: &[view],
+                loss: args.loss,
+                observed: &mask,
+                attributes: None,
+            },
+        )?;
+        let stamps = Timestamps::new(ctx, 3)?;
+        let mut rec = Recorder::new(ctx)?;
+        scene.record_prepare(&renderer, &mut rec)?;
+        ctx.submit_and_wait(rec)?;
+        let mut rec = Recorder::new(ctx)?;
+        scene.record(&renderer, &mut rec, Some(&stamps))?;
+        let iteration = rec.finish()?;
+
+        let buffers = MeshBuffers::new(ctx, &mesh)?;
+        let shaded = ShadedTarget::new(ctx, size, size, 1)?;
+        let plain_stamps = Timestamps::new(ctx, 2)?;
+        let mut rec = Recorder::new(ctx)?;
+        rec.reset_timestamps(&plain_stamps);
+        rec.timestamp(&plain_stamps, 0);
+        renderer
+            .rasterizer()
+            .draw_shaded(&mut rec, &buffers, &[view], &shaded)?;
+        rec.timestamp(&plain_stamps, 1);
+        let plain = rec.finish()?;
+
+        let (mut forward, mut backward, mut plain_ms, mut wall, mut plain_wall) =
+            (vec![], vec![], vec![], vec![], vec![]);
+        for repeat in 0..=args.repeats {
+            let started = Instant::now();
+            ctx.replay(&iteration)?;
+            let elapsed = started.elapsed().as_secs_f64() * 1e3;
+            let t = stamps.read_ms()?;
+            let started = Instant::now();
+            ctx.replay(&plain)?;
+            let plain_elapsed = started.elapsed().as_secs_f64() * 1e3;
+            let p = plain_stamps.read_ms()?;
+            if repeat == 0 {
+                continue; // warm-up
+            }
+            forward.push(t[1] - t[0]);
+            backward.push(t[2] - t[1]);
+            wall.push(elapsed);
+            plain_ms.push(p[1] - p[0]);
+            plain_wall.push(plain_elapsed);
+        }
+        let loss = scene.read()?.loss[0];
+        let row = Row {
+            vertices: mesh.vertex_count(),
+            faces: mesh.triangle_count(),
+            forward_ms: median(forward),
+            backward_ms: median(backward),
+            plain_ms: median(plain_ms),
+            wall_ms: median(wall),
+            plain_wall_ms: median(plain_wall),
+        };
+        eprintln!(
+            "      forward {:.3} ms, backward {:.3} ms, plain {:.3} ms, (forward + backward) / plain = {:.2}; wall {:.3} ms vs {:.3} ms; loss {loss:.5}",
+            row.forward_ms,
+            row.backward_ms,
+            row.plain_ms,
+            (row.forward_ms + row.backward_ms) / row.plain_ms,
+            row.wall_ms,
+            row.plain_wall_ms
+        );
+        rows.push(row);
+    }
+    Ok(rows)
+}
+
+/// Writes `bench.csv` (the columns the peers' script writes too) and `bench.json` (with
+/// wall times).
+pub fn write(out: &Path, rows: &[Row], size: u32, device: &str) -> Result<()> {
+    let mut csv =
+        String::from("vertices,faces,width,height,forward_ms,backward_ms,plain_ms,device\n");
+    let mut json = Vec::new();
+    let device_field = device.replace(',', ";");
+    for r in rows {
+        csv.push_str(&format!(
+            "{},{},{size},{size},{:.4},{:.4},{:.4},{device_field}\n",
+            r.vertices, r.faces, r.forward_ms, r.backward_ms, r.plain_ms
+        ));
+        json.push(format!(
+            "  {{\"vertices\": {}, \"faces\": {}, \"width\": {size}, \"height\": {size}, \"forward_ms\": {:.4}, \"backward_ms\": {:.4}, \"plain_ms\": {:.4}, \"wall_ms\": {:.4}, \"plain_wall_ms\": {:.4}, \"device\": {:?}}}",
+            r.vertices, r.faces, r.forward_ms, r.backward_ms, r.plain_ms, r.wall_ms, r.plain_wall_ms, device
+        ));
+    }
+    vkdr::io::write_atomically(&out.join("bench.csv"), csv.as_bytes()).context("bench.csv")?;
+    let json = format!("[\n{}\n]\n", json.join(",\n"));
+    vkdr::io::write_atomically(&out.join("bench.json"), json.as_bytes()).context("bench.json")?;
+    Ok(())
+}
