@@ -19,16 +19,27 @@ void main() {
     if (inside) {
         index = pixel_index(p, view);
         uint id = ids[index];
-        bool any_pair = false;
-        for (int s = 0; s < 4; ++s) {
-            ivec2 q = clamp(p + STEPS[s], ivec2(0), size - 1);
-            any_pair = any_pair || pair_matters(id, ids[pixel_index(q, view)]);
-        }
+        // Neighbours by index offset; at the image border the pixel itself stands in.
+        uint right = p.x + 1 < size.x ? ids[index + 1u] : id;
+        uint left = p.x > 0 ? ids[index - 1u] : id;
+        uint down = p.y + 1 < size.y ? ids[index + pc.width] : id;
+        uint up = p.y > 0 ? ids[index - pc.width] : id;
+        bool any_pair = pair_matters(id, right) || pair_matters(id, left) || pair_matters(id, down)
+            || pair_matters(id, up);
         listed = any_pair || (pc.channels > 0u && id != 0u);
-        if (!listed) {
-            vec4 a = id == 0u ? vec4(0.0) : vec4(1.0, 0.0, 0.0, 0.0);
-            store_antialiased(index, a);
-            terms = loss_terms(index, a);
+        if (!listed && pc.channels == 0u) {
+            // Coverage against a mask: one channel, no interpolation.
+            float a = id == 0u ? 0.0 : 1.0;
+            antialiased[index] = a;
+            float o = observed[index];
+            float n = float(pc.width * pc.height);
+            if (pc.loss == LOSS_MSE) terms.x = (a - o) * (a - o) / n;
+            else if (pc.loss == LOSS_IOU) terms = vec3(0.0, a * o, a + o - a * o);
+            else terms.x = a * distance_field[index] / n;
+        } else if (!listed) {
+            // Background with attributes, away from the object.
+            store_antialiased(index, vec4(0.0));
+            terms = loss_terms(index, vec4(0.0));
         }
     }
     uvec4 ballot = subgroupBallot(listed);

@@ -11,6 +11,7 @@ pub mod gpu;
 pub mod io;
 pub mod loss;
 pub mod mesh;
+pub mod plot;
 pub mod raster;
 
 pub use camera::{Camera, Pose};

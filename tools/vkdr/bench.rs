@@ -11,6 +11,7 @@ use anyhow::{Context as _, Result};
 use vkdr::diff::{DiffRenderer, Scene, SceneDesc};
 use vkdr::gpu::{Context, Recorder, Timestamps};
 use vkdr::loss::Loss;
+use vkdr::plot::{Plot, PALETTE};
 use vkdr::raster::{MeshBuffers, ShadedTarget, View};
 use vkdr::{Camera, Mesh, Pose};
 
@@ -160,8 +161,8 @@ pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
     Ok(rows)
 }
 
-/// Writes `bench.csv` (the columns the peers' script writes too) and `bench.json` (with
-/// wall times).
+/// Writes `bench.csv` (the columns the peers' script writes too), `bench.json` (with wall
+/// times) and `bench.png` (time against vertex count, log axes).
 pub fn write(out: &Path, rows: &[Row], size: u32, device: &str) -> Result<()> {
     let mut csv =
         String::from("vertices,faces,width,height,forward_ms,backward_ms,plain_ms,device\n");
@@ -180,5 +181,27 @@ pub fn write(out: &Path, rows: &[Row], size: u32, device: &str) -> Result<()> {
     vkdr::io::write_atomically(&out.join("bench.csv"), csv.as_bytes()).context("bench.csv")?;
     let json = format!("[\n{}\n]\n", json.join(",\n"));
     vkdr::io::write_atomically(&out.join("bench.json"), json.as_bytes()).context("bench.json")?;
+
+    let series = |f: &dyn Fn(&Row) -> f64| rows.iter().map(|r| (r.vertices as f64, f(r))).collect();
+    let name = device.split(" (").next().unwrap_or(device);
+    let plot = Plot::new(
+        &format!("vkdr bench {size}x{size}, {name}"),
+        "vertices",
+        "GPU time per pass (ms)",
+    )
+    .log_x()
+    .log_y()
+    .series("forward", PALETTE[0], series(&|r| r.forward_ms))
+    .series("backward", PALETTE[1], series(&|r| r.backward_ms))
+    .series(
+        "forward + backward",
+        PALETTE[2],
+        series(&|r| r.forward_ms + r.backward_ms),
+    )
+    .series("plain colour render", PALETTE[3], series(&|r| r.plain_ms));
+    vkdr::io::write_png(
+        &out.join("bench.png"),
+        &image::DynamicImage::ImageRgb8(plot.render()),
+    )?;
     Ok(())
 }

@@ -241,7 +241,10 @@ fn bench(size: u32, repeats: usize, max_vertices: usize, loss: &str, out: &Path)
             (r.forward_ms + r.backward_ms) / r.plain_ms
         );
     }
-    println!("wrote {0}/bench.csv and {0}/bench.json", out.display());
+    println!(
+        "wrote {0}/bench.csv, {0}/bench.json and {0}/bench.png",
+        out.display()
+    );
     Ok(())
 }
 
