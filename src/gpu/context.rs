@@ -467,6 +467,15 @@ fn query_features(instance: &ash::Instance, pd: vk::PhysicalDevice) -> FeatureSu
             instance.get_physical_device_features2(pd, &mut features);
         }
         let core = instance.get_physical_device_features(pd);
+        let mut subgroup = vk::PhysicalDeviceSubgroupProperties::default();
+        let mut props2 = vk::PhysicalDeviceProperties2::default().push_next(&mut subgroup);
+        instance.get_physical_device_properties2(pd, &mut props2);
+        let needed_ops = vk::SubgroupFeatureFlags::BASIC
+            | vk::SubgroupFeatureFlags::ARITHMETIC
+            | vk::SubgroupFeatureFlags::BALLOT
+            | vk::SubgroupFeatureFlags::VOTE;
+        let subgroups_ok = subgroup.supported_operations.contains(needed_ops)
+            && subgroup.supported_stages.contains(vk::ShaderStageFlags::COMPUTE);
         FeatureSupport {
             features: vec![
                 ("Vulkan 1.3", api_1_3),
@@ -490,8 +499,8 @@ fn query_features(instance: &ash::Instance, pd: vk::PhysicalDevice) -> FeatureSu
                     core.fragment_stores_and_atomics == vk::TRUE,
                 ),
                 (
-                    "geometry shader (for gl_PrimitiveID)",
-                    core.geometry_shader == vk::TRUE,
+                    "compute subgroups (basic, arithmetic, ballot, vote)",
+                    subgroups_ok,
                 ),
             ],
         }
@@ -627,8 +636,7 @@ fn create_device(
     ];
     let core = vk::PhysicalDeviceFeatures::default()
         .vertex_pipeline_stores_and_atomics(true)
-        .fragment_stores_and_atomics(true)
-        .geometry_shader(true);
+        .fragment_stores_and_atomics(true);
     let mut v12 = vk::PhysicalDeviceVulkan12Features::default().timeline_semaphore(true);
     let mut v13 = vk::PhysicalDeviceVulkan13Features::default()
         .synchronization2(true)
