@@ -475,7 +475,9 @@ fn query_features(instance: &ash::Instance, pd: vk::PhysicalDevice) -> FeatureSu
             | vk::SubgroupFeatureFlags::BALLOT
             | vk::SubgroupFeatureFlags::VOTE;
         let subgroups_ok = subgroup.supported_operations.contains(needed_ops)
-            && subgroup.supported_stages.contains(vk::ShaderStageFlags::COMPUTE);
+            && subgroup
+                .supported_stages
+                .contains(vk::ShaderStageFlags::COMPUTE);
         FeatureSupport {
             features: vec![
                 ("Vulkan 1.3", api_1_3),

@@ -1,0 +1,644 @@
+//! Non-rigid Coherent Point Drift (Myronenko & Song 2010): moves source points Y onto a
+//! target set X as T = Y + G W, G_ij = exp(-|y_i - y_j|^2 / (2 beta^2)).
+//!
+//! The E-step (P1, Pt1, PX) runs on the device without forming the M x N matrix: one pass
+//! per target point accumulates a log-sum-exp denominator, one pass per source point the
+//! sums (`glsl/cpd_*.comp`). The M-step solves the well-conditioned
+//! `(dP1 G + lambda sigma^2 I) W = PX - dP1 Y` in float64 on the host: densely for small M,
+//! else with the top eigenvectors of G (found by subspace iteration whose kernel products
+//! run on the device, `glsl/gauss_product.comp`) and the Woodbury identity, never
+//! inverting dP1. [`reference`] runs the same algorithm with a float64 E-step.
+//!
+//! As in Myronenko's reference code, both sets are normalised before registration, here
+//! jointly by the source's centroid and RMS radius (so that differences of size between
+//! targets survive): beta and lambda are in those units, and results are mapped back, so
+//! millimetres and metres give the same answer.
+
+pub mod linalg;
+pub mod reference;
+
+use std::time::Instant;
+
+use bytemuck::{Pod, Zeroable};
+use glam::DVec3;
+
+use crate::error::{Error, Result};
+use crate::gpu::{
+    spirv, Binding, BindingKind, Buffer, BufferKind, ComputePipeline, Context, Recorder,
+};
+use linalg::Matrix;
+
+const DENOMINATOR: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/cpd_denominator.comp.spv"));
+const ACCUMULATE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/cpd_accumulate.comp.spv"));
+const GAUSS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/gauss_product.comp.spv"));
+
+/// CPD settings (defaults as in the paper and pycpd: beta = 2, lambda = 2, w = 0.1).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CpdParams {
+    /// Width of the Gaussian kernel of the displacement field, in units of the source's
+    /// RMS radius.
+    pub beta: f64,
+    /// Smoothness weight.
+    pub lambda: f64,
+    /// Weight of the uniform outlier component, in (0, 1).
+    pub w: f64,
+    pub max_iterations: usize,
+    /// Stop when sigma^2 changes by less than this fraction of its initial value.
+    pub tolerance: f64,
+    /// M-step with the top `rank` eigenvectors of G; `None`: dense up to
+    /// [`CpdParams::DENSE_LIMIT`] source points, else rank 100.
+    pub rank: Option<usize>,
+}
+
+impl Default for CpdParams {
+    fn default() -> Self {
+        Self {
+            beta: 2.0,
+            lambda: 2.0,
+            w: 0.1,
+            max_iterations: 150,
+            tolerance: 1e-5,
+            rank: None,
+        }
+    }
+}
+
+impl CpdParams {
+    pub const DENSE_LIMIT: usize = 2000;
+
+    fn validate(&self) -> Result<()> {
+        let ok = self.beta > 0.0
+            && self.beta.is_finite()
+            && self.lambda > 0.0
+            && self.lambda.is_finite()
+            && self.w > 0.0
+            && self.w < 1.0
+            && self.tolerance >= 0.0;
+        if ok {
+            Ok(())
+        } else {
+            Err(Error::InvalidInput(format!(
+                "CPD parameters beta={}, lambda={}, w={} need beta > 0, lambda > 0, 0 < w < 1",
+                self.beta, self.lambda, self.w
+            )))
+        }
+    }
+}
+
+/// The outcome of one registration.
+#[derive(Clone, Debug)]
+pub struct CpdResult {
+    /// The moved source points T = Y + G W (low-rank G when the M-step was low-rank).
+    pub deformed: Vec<DVec3>,
+    /// The coefficients W (M x 3), in the data's units: deformed = Y + G W.
+    pub w: Vec<DVec3>,
+    /// sigma^2 after each iteration (the first entry is the initial value), in normalised
+    /// units.
+    pub sigma2: Vec<f64>,
+    pub iterations: usize,
+    pub converged: bool,
+    pub seconds: f64,
+}
+
+/// Sums of the E-step: P1 (per source point), Pt1 (per target point), PX (per source).
+pub struct Expectation {
+    pub p1: Vec<f64>,
+    pub pt1: Vec<f64>,
+    pub px: Vec<DVec3>,
+}
+
+/// Where the E-step and the kernel products run (the device, or the float64 reference).
+pub trait Backend {
+    /// The E-step for the moved source points `moving` against the target.
+    fn expectation(&mut self, moving: &[DVec3], sigma2: f64, log_c: f64) -> Result<Expectation>;
+    /// G V for the source points and a block of columns (M x k).
+    fn kernel_product(&mut self, v: &Matrix) -> Result<Matrix>;
+}
+
+/// The dense kernel matrix G of `points` with width `beta`.
+pub fn kernel_matrix(points: &[DVec3], beta: f64) -> Matrix {
+    let m = points.len();
+    let mut g = Matrix::zeros(m, m);
+    let inv = 1.0 / (2.0 * beta * beta);
+    for i in 0..m {
+        for j in 0..m {
+            g.set(
+                i,
+                j,
+                (-(points[i] - points[j]).length_squared() * inv).exp(),
+            );
+        }
+    }
+    g
+}
+
+/// The M-step's view of G: dense, or its top eigenpairs.
+enum Kernel {
+    Dense(Matrix),
+    LowRank { vectors: Matrix, values: Vec<f64> },
+}
+
+impl Kernel {
+    fn apply(&self, w: &Matrix) -> Matrix {
+        match self {
+            Kernel::Dense(g) => g.mul(w),
+            Kernel::LowRank { vectors, values } => {
+                let mut coeffs = vectors.transpose().mul(w);
+                for (r, &l) in values.iter().enumerate() {
+                    for c in 0..coeffs.cols {
+                        let v = coeffs.at(r, c) * l;
+                        coeffs.set(r, c, v);
+                    }
+                }
+                vectors.mul(&coeffs)
+            }
+        }
+    }
+
+    /// Solves (dP1 G + s I) W = B.
+    fn solve(&self, p1: &[f64], s: f64, b: &Matrix) -> Result<Matrix> {
+        match self {
+            Kernel::Dense(g) => {
+                let mut a = g.clone();
+                for i in 0..a.rows {
+                    for j in 0..a.cols {
+                        a.data[i * a.cols + j] *= p1[i];
+                    }
+                    a.data[i * a.cols + i] += s;
+                }
+                linalg::solve(a, b.clone())
+            }
+            Kernel::LowRank { vectors: q, values } => {
+                // Woodbury: (s I + dP Q L Q^T)^-1 = (I - dP Q (s L^-1 + Q^T dP Q)^-1 Q^T) / s.
+                let k = values.len();
+                let mut dpq = q.clone();
+                for i in 0..dpq.rows {
+                    for c in 0..k {
+                        dpq.data[i * k + c] *= p1[i];
+                    }
+                }
+                let mut inner = q.transpose().mul(&dpq);
+                for (c, &l) in values.iter().enumerate() {
+                    let v = inner.at(c, c) + s / l;
+                    inner.set(c, c, v);
+                }
+                let correction = dpq.mul(&linalg::solve(inner, q.transpose().mul(b))?);
+                let mut w = b.clone();
+                for (x, y) in w.data.iter_mut().zip(&correction.data) {
+                    *x = (*x - y) / s;
+                }
+                Ok(w)
+            }
+        }
+    }
+}
+
+/// Top `rank` eigenpairs of G by subspace iteration with Rayleigh-Ritz, the kernel
+/// products done by the backend.
+fn top_eigenpairs(backend: &mut dyn Backend, m: usize, rank: usize) -> Result<Kernel> {
+    let k = (rank + 10).min(m);
+    // A deterministic start: smooth functions of the index mixed with a hash.
+    let mut q = Matrix::zeros(m, k);
+    for i in 0..m {
+        for c in 0..k {
+            let h = ((i as u64 * 2654435761 + c as u64 * 40503) % 1000003) as f64 / 1000003.0;
+            q.set(i, c, h - 0.5);
+        }
+    }
+    orthonormalize(&mut q);
+    for _ in 0..6 {
+        q = backend.kernel_product(&q)?;
+        orthonormalize(&mut q);
+    }
+    let gq = backend.kernel_product(&q)?;
+    let h = q.transpose().mul(&gq);
+    let (values, vectors) = linalg::symmetric_eigen(&h);
+    let rotated = q.mul(&vectors);
+    let keep = rank.min(m);
+    let mut out = Matrix::zeros(m, keep);
+    for i in 0..m {
+        for c in 0..keep {
+            out.set(i, c, rotated.at(i, c));
+        }
+    }
+    let values: Vec<f64> = values[..keep].iter().map(|&v| v.max(1e-12)).collect();
+    Ok(Kernel::LowRank {
+        vectors: out,
+        values,
+    })
+}
+
+/// Modified Gram-Schmidt on the columns (a column that vanishes is left at zero).
+fn orthonormalize(q: &mut Matrix) {
+    for c in 0..q.cols {
+        for prev in 0..c {
+            let dot: f64 = (0..q.rows).map(|i| q.at(i, c) * q.at(i, prev)).sum();
+            for i in 0..q.rows {
+                let v = q.at(i, c) - dot * q.at(i, prev);
+                q.set(i, c, v);
+            }
+        }
+        let norm: f64 = (0..q.rows).map(|i| q.at(i, c).powi(2)).sum::<f64>().sqrt();
+        if norm > 1e-300 {
+            for i in 0..q.rows {
+                let v = q.at(i, c) / norm;
+                q.set(i, c, v);
+            }
+        }
+    }
+}
+
+fn to_points(m: &Matrix) -> Vec<DVec3> {
+    m.data
+        .chunks(3)
+        .map(|c| DVec3::new(c[0], c[1], c[2]))
+        .collect()
+}
+
+/// Runs CPD with the given backend (device or reference). `on_iteration` sees each
+/// iteration's number and sigma^2 (for progress bars).
+pub fn run(
+    backend: &mut dyn Backend,
+    source: &[DVec3],
+    target: &[DVec3],
+    params: &CpdParams,
+    on_iteration: &mut dyn FnMut(usize, f64),
+) -> Result<CpdResult> {
+    params.validate()?;
+    check_points(source, "source")?;
+    check_points(target, "target")?;
+    let started = Instant::now();
+    let (m, n) = (source.len(), target.len());
+    let kernel = match params.rank {
+        Some(rank) if rank < m => top_eigenpairs(backend, m, rank)?,
+        None if m > CpdParams::DENSE_LIMIT => top_eigenpairs(backend, m, 100)?,
+        _ => Kernel::Dense(kernel_matrix(source, params.beta)),
+    };
+    let x_norms: Vec<f64> = target.iter().map(|x| x.length_squared()).collect();
+
+    // Initial sigma^2: mean squared distance over all pairs, in closed form.
+    let sum_x: DVec3 = target.iter().sum();
+    let sum_y: DVec3 = source.iter().sum();
+    let sum_xx: f64 = x_norms.iter().sum();
+    let sum_yy: f64 = source.iter().map(|p| p.length_squared()).sum();
+    let initial = ((m as f64 * sum_xx + n as f64 * sum_yy - 2.0 * sum_x.dot(sum_y))
+        / (3.0 * m as f64 * n as f64))
+        .max(0.0);
+    let floor = 1e-12 * initial.max(1e-300);
+    let mut sigma2 = if initial > 0.0 { initial } else { 1.0 };
+
+    let mut w = Matrix::zeros(m, 3);
+    let mut moving = source.to_vec();
+    let mut history = vec![sigma2];
+    let mut converged = false;
+    let mut iterations = 0;
+    while iterations < params.max_iterations {
+        iterations += 1;
+        let log_c = 1.5 * (2.0 * std::f64::consts::PI * sigma2).ln()
+            + (params.w / (1.0 - params.w)).ln()
+            + (m as f64 / n as f64).ln();
+        let e = backend.expectation(&moving, sigma2, log_c)?;
+        // M-step: (dP1 G + lambda sigma^2 I) W = PX - dP1 Y.
+        let mut b = Matrix::zeros(m, 3);
+        for i in 0..m {
+            let r = e.px[i] - e.p1[i] * source[i];
+            b.data[3 * i..3 * i + 3].copy_from_slice(&r.to_array());
+        }
+        w = kernel.solve(&e.p1, params.lambda * sigma2, &b)?;
+        let t = kernel.apply(&w);
+        for i in 0..m {
+            moving[i] = source[i] + DVec3::new(t.at(i, 0), t.at(i, 1), t.at(i, 2));
+        }
+        let np: f64 = e.p1.iter().sum();
+        let xpx: f64 = e.pt1.iter().zip(&x_norms).map(|(a, b)| a * b).sum();
+        let cross: f64 = e.px.iter().zip(&moving).map(|(a, b)| a.dot(*b)).sum();
+        let tpt: f64 =
+            e.p1.iter()
+                .zip(&moving)
+                .map(|(a, b)| a * b.length_squared())
+                .sum();
+        let previous = sigma2;
+        sigma2 = if np > 0.0 {
+            (xpx - 2.0 * cross + tpt) / (3.0 * np)
+        } else {
+            previous
+        };
+        if !sigma2.is_finite() || sigma2 <= floor {
+            sigma2 = floor.max(f64::MIN_POSITIVE);
+        }
+        history.push(sigma2);
+        on_iteration(iterations, sigma2);
+        if (previous - sigma2).abs() <= params.tolerance * initial.max(f64::MIN_POSITIVE) {
+            converged = true;
+            break;
+        }
+    }
+    if moving.iter().any(|p| !p.is_finite()) {
+        return Err(Error::InvalidInput(
+            "CPD diverged to non-finite points".into(),
+        ));
+    }
+    Ok(CpdResult {
+        deformed: moving,
+        w: to_points(&w),
+        sigma2: history,
+        iterations,
+        converged,
+        seconds: started.elapsed().as_secs_f64(),
+    })
+}
+
+fn check_points(points: &[DVec3], what: &str) -> Result<()> {
+    if points.is_empty() {
+        return Err(Error::InvalidInput(format!(
+            "the {what} point set is empty"
+        )));
+    }
+    if let Some(i) = points.iter().position(|p| !p.is_finite()) {
+        return Err(Error::InvalidInput(format!(
+            "{what} point {i} is not finite: {:?}",
+            points[i]
+        )));
+    }
+    Ok(())
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct EstepConstants {
+    m: u32,
+    n: u32,
+    inv_two_sigma2: f32,
+    log_c: f32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct GaussConstants {
+    m: u32,
+    inv_two_beta2: f32,
+}
+
+/// CPD's compute pipelines.
+pub struct CpdPipelines {
+    denominator: ComputePipeline,
+    accumulate: ComputePipeline,
+    gauss: ComputePipeline,
+}
+
+impl CpdPipelines {
+    pub fn new(ctx: &Context) -> Result<Self> {
+        let b = BindingKind::StorageBuffer;
+        Ok(Self {
+            denominator: ComputePipeline::new(
+                ctx,
+                "cpd denominator",
+                &spirv(DENOMINATOR)?,
+                &[b; 3],
+                16,
+            )?,
+            accumulate: ComputePipeline::new(
+                ctx,
+                "cpd accumulate",
+                &spirv(ACCUMULATE)?,
+                &[b; 4],
+                16,
+            )?,
+            gauss: ComputePipeline::new(ctx, "gauss product", &spirv(GAUSS)?, &[b; 3], 8)?,
+        })
+    }
+}
+
+fn vec4s(points: &[DVec3], offset: DVec3) -> Vec<[f32; 4]> {
+    points
+        .iter()
+        .map(|p| {
+            let q = *p - offset;
+            [q.x as f32, q.y as f32, q.z as f32, 0.0]
+        })
+        .collect()
+}
+
+/// The device backend: points live on the device as float32, relative to the target's
+/// centroid (so coordinates far from the origin keep their precision).
+pub struct GpuBackend<'a> {
+    ctx: &'a Context,
+    pipelines: &'a CpdPipelines,
+    source: Vec<DVec3>,
+    offset: DVec3,
+    beta: f64,
+    target: Buffer,
+    n: usize,
+    moving: Buffer,
+    log_den: Buffer,
+    sums: Buffer,
+    source_points: Buffer,
+    columns: Buffer,
+    product: Buffer,
+}
+
+impl<'a> GpuBackend<'a> {
+    pub fn new(
+        ctx: &'a Context,
+        pipelines: &'a CpdPipelines,
+        source: &[DVec3],
+        target: &[DVec3],
+        beta: f64,
+    ) -> Result<Self> {
+        let offset = target.iter().sum::<DVec3>() / target.len().max(1) as f64;
+        let (m, n) = (source.len() as u64, target.len() as u64);
+        let device = |name, bytes| Buffer::new(ctx, name, bytes, BufferKind::Device);
+        Ok(Self {
+            ctx,
+            pipelines,
+            source: source.to_vec(),
+            offset,
+            beta,
+            target: Buffer::from_slice(ctx, "cpd target", &vec4s(target, offset))?,
+            n: target.len(),
+            moving: device("cpd moving", m * 16)?,
+            log_den: device("cpd log denominators", n * 4)?,
+            sums: device("cpd sums", m * 16)?,
+            source_points: Buffer::from_slice(ctx, "cpd source", &vec4s(source, offset))?,
+            columns: device("kernel columns", m * 16)?,
+            product: device("kernel product", m * 16)?,
+        })
+    }
+}
+
+impl Backend for GpuBackend<'_> {
+    fn expectation(&mut self, moving: &[DVec3], sigma2: f64, log_c: f64) -> Result<Expectation> {
+        let (m, n) = (moving.len() as u32, self.n as u32);
+        self.moving.write(0, &vec4s(moving, self.offset))?;
+        let constants = EstepConstants {
+            m,
+            n,
+            inv_two_sigma2: (0.5 / sigma2) as f32,
+            log_c: log_c as f32,
+        };
+        if !constants.inv_two_sigma2.is_finite() || !constants.log_c.is_finite() {
+            return Err(Error::InvalidInput(format!(
+                "sigma^2 = {sigma2:e} is out of float32 range"
+            )));
+        }
+        let p = self.pipelines;
+        let mut rec = Recorder::new(self.ctx)?;
+        rec.bind_compute(&p.denominator);
+        rec.push_compute_bindings(
+            &p.denominator,
+            &[
+                Binding::buffer(&self.moving),
+                Binding::buffer(&self.target),
+                Binding::buffer(&self.log_den),
+            ],
+        );
+        rec.compute_constants(&p.denominator, &constants);
+        rec.dispatch(n.div_ceil(64), 1, 1);
+        rec.memory_barrier();
+        rec.bind_compute(&p.accumulate);
+        rec.push_compute_bindings(
+            &p.accumulate,
+            &[
+                Binding::buffer(&self.moving),
+                Binding::buffer(&self.target),
+                Binding::buffer(&self.log_den),
+                Binding::buffer(&self.sums),
+            ],
+        );
+        rec.compute_constants(&p.accumulate, &constants);
+        rec.dispatch(m.div_ceil(64), 1, 1);
+        self.ctx.submit_and_wait(rec)?;
+        let sums = self.sums.read_range::<[f32; 4]>(0, m as usize)?;
+        let log_den = self.log_den.read_range::<f32>(0, n as usize)?;
+        Ok(Expectation {
+            p1: sums.iter().map(|s| s[3] as f64).collect(),
+            // Pt1_n = sum_m P_mn = 1 - c / denominator_n.
+            pt1: log_den
+                .iter()
+                .map(|&l| (1.0 - (log_c - l as f64).exp()).clamp(0.0, 1.0))
+                .collect(),
+            // PX was accumulated relative to the offset: add P1 * offset back.
+            px: sums
+                .iter()
+                .map(|s| {
+                    DVec3::new(s[0] as f64, s[1] as f64, s[2] as f64) + s[3] as f64 * self.offset
+                })
+                .collect(),
+        })
+    }
+
+    fn kernel_product(&mut self, v: &Matrix) -> Result<Matrix> {
+        let m = self.source.len();
+        let mut out = Matrix::zeros(m, v.cols);
+        let constants = GaussConstants {
+            m: m as u32,
+            inv_two_beta2: (0.5 / (self.beta * self.beta)) as f32,
+        };
+        for block in (0..v.cols).step_by(4) {
+            let columns: Vec<[f32; 4]> = (0..m)
+                .map(|i| {
+                    std::array::from_fn(|c| {
+                        if block + c < v.cols {
+                            v.at(i, block + c) as f32
+                        } else {
+                            0.0
+                        }
+                    })
+                })
+                .collect();
+            self.columns.write(0, &columns)?;
+            let p = self.pipelines;
+            let mut rec = Recorder::new(self.ctx)?;
+            rec.bind_compute(&p.gauss);
+            rec.push_compute_bindings(
+                &p.gauss,
+                &[
+                    Binding::buffer(&self.source_points),
+                    Binding::buffer(&self.columns),
+                    Binding::buffer(&self.product),
+                ],
+            );
+            rec.compute_constants(&p.gauss, &constants);
+            rec.dispatch((m as u32).div_ceil(64), 1, 1);
+            self.ctx.submit_and_wait(rec)?;
+            let product = self.product.read_range::<[f32; 4]>(0, m)?;
+            for (i, row) in product.iter().enumerate() {
+                for c in 0..4.min(v.cols - block) {
+                    out.set(i, block + c, row[c] as f64);
+                }
+            }
+        }
+        Ok(out)
+    }
+}
+
+/// The joint normalisation: centroid and RMS radius of the source.
+#[derive(Clone, Copy, Debug)]
+pub struct Normalization {
+    pub mean: DVec3,
+    pub scale: f64,
+}
+
+impl Normalization {
+    pub fn of(source: &[DVec3]) -> Self {
+        let mean = source.iter().sum::<DVec3>() / source.len().max(1) as f64;
+        let rms = (source
+            .iter()
+            .map(|p| (*p - mean).length_squared())
+            .sum::<f64>()
+            / source.len().max(1) as f64)
+            .sqrt();
+        Self {
+            mean,
+            scale: if rms > 0.0 && rms.is_finite() {
+                rms
+            } else {
+                1.0
+            },
+        }
+    }
+
+    pub fn apply(&self, points: &[DVec3]) -> Vec<DVec3> {
+        points
+            .iter()
+            .map(|p| (*p - self.mean) / self.scale)
+            .collect()
+    }
+}
+
+/// Normalises, runs CPD with the backend made for the normalised sets, maps back.
+pub fn run_normalized<B: Backend>(
+    make_backend: impl FnOnce(&[DVec3], &[DVec3]) -> Result<B>,
+    source: &[DVec3],
+    target: &[DVec3],
+    params: &CpdParams,
+    on_iteration: &mut dyn FnMut(usize, f64),
+) -> Result<CpdResult> {
+    params.validate()?;
+    check_points(source, "source")?;
+    check_points(target, "target")?;
+    let norm = Normalization::of(source);
+    let (y, x) = (norm.apply(source), norm.apply(target));
+    let mut backend = make_backend(&y, &x)?;
+    let mut result = run(&mut backend, &y, &x, params, on_iteration)?;
+    for p in &mut result.deformed {
+        *p = *p * norm.scale + norm.mean;
+    }
+    for w in &mut result.w {
+        *w *= norm.scale;
+    }
+    Ok(result)
+}
+
+/// Registers `source` onto `target` with the E-step and kernel products on the device.
+pub fn register(
+    ctx: &Context,
+    pipelines: &CpdPipelines,
+    source: &[DVec3],
+    target: &[DVec3],
+    params: &CpdParams,
+    on_iteration: &mut dyn FnMut(usize, f64),
+) -> Result<CpdResult> {
+    let make = |y: &[DVec3], x: &[DVec3]| GpuBackend::new(ctx, pipelines, y, x, params.beta);
+    run_normalized(make, source, target, params, on_iteration)
+}

@@ -1,0 +1,284 @@
+//! CPD on the device against the float64 reference (same algorithm, float64 E-step), on
+//! a known smooth deformation, and on hard cases.
+
+mod common;
+
+use glam::DVec3;
+use vkdr::cpd::{self, reference, CpdParams, CpdPipelines, CpdResult};
+
+/// Deterministic points in [-0.5, 0.5]^3 scaled by `scale` (a 64-bit LCG).
+fn points(count: usize, seed: u64, scale: f64) -> Vec<DVec3> {
+    let mut state = seed
+        .wrapping_mul(6364136223846793005)
+        .wrapping_add(1442695040888963407);
+    let mut next = || {
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+    };
+    (0..count)
+        .map(|_| DVec3::new(next(), next(), next()) * scale)
+        .collect()
+}
+
+fn smooth(p: DVec3, amount: f64) -> DVec3 {
+    p + amount
+        * DVec3::new(
+            (2.0 * p.y).sin(),
+            (1.5 * p.z).cos() - 1.0,
+            0.5 * (p.x * p.y),
+        )
+}
+
+fn extent(points: &[DVec3]) -> f64 {
+    let (lo, hi) = points.iter().fold(
+        (DVec3::splat(f64::MAX), DVec3::splat(f64::MIN)),
+        |(l, h), p| (l.min(*p), h.max(*p)),
+    );
+    (hi - lo).max_element()
+}
+
+fn gpu(source: &[DVec3], target: &[DVec3], params: &CpdParams) -> CpdResult {
+    let ctx = common::context();
+    let pipelines = CpdPipelines::new(&ctx).unwrap();
+    let result =
+        cpd::register(&ctx, &pipelines, source, target, params, &mut |_, _| {}).expect("cpd");
+    common::assert_no_validation_errors(&ctx);
+    assert!(
+        result
+            .deformed
+            .iter()
+            .chain(&result.w)
+            .all(|p| p.is_finite()),
+        "non-finite result"
+    );
+    assert!(
+        result.sigma2.iter().all(|s| s.is_finite() && *s > 0.0),
+        "sigma^2 {:?}",
+        result.sigma2
+    );
+    result
+}
+
+fn max_difference(a: &[DVec3], b: &[DVec3]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(p, q)| (*p - *q).length())
+        .fold(0.0, f64::max)
+}
+
+/// Final points within 1e-4 of the set's extent of the float64 reference.
+#[test]
+fn device_matches_the_float64_reference() {
+    let source = points(60, 1, 1.0);
+    let target: Vec<DVec3> = points(75, 2, 1.0)
+        .into_iter()
+        .map(|p| smooth(p, 0.1))
+        .collect();
+    let params = CpdParams {
+        beta: 0.5,
+        max_iterations: 40,
+        ..CpdParams::default()
+    };
+    let device = gpu(&source, &target, &params);
+    let expected = reference::register(&source, &target, &params).unwrap();
+    let bound = 1e-4 * extent(&target);
+    let diff = max_difference(&device.deformed, &expected.deformed);
+    assert!(
+        diff <= bound,
+        "device and reference differ by {diff} (bound {bound})"
+    );
+    assert_eq!(device.iterations, expected.iterations);
+}
+
+#[test]
+fn recovers_a_known_smooth_deformation() {
+    let source = points(300, 3, 1.0);
+    let target: Vec<DVec3> = source.iter().map(|&p| smooth(p, 0.15)).collect();
+    let params = CpdParams {
+        beta: 0.5,
+        lambda: 1.0,
+        max_iterations: 150,
+        ..CpdParams::default()
+    };
+    let result = gpu(&source, &target, &params);
+    let before: f64 = source
+        .iter()
+        .zip(&target)
+        .map(|(a, b)| (*a - *b).length())
+        .sum::<f64>()
+        / 300.0;
+    let after: f64 = result
+        .deformed
+        .iter()
+        .zip(&target)
+        .map(|(a, b)| (*a - *b).length())
+        .sum::<f64>()
+        / 300.0;
+    eprintln!(
+        "mean correspondence error {before:.4} -> {after:.5} in {} iterations",
+        result.iterations
+    );
+    assert!(after < 0.1 * before, "CPD left {after} of {before}");
+}
+
+#[test]
+fn low_rank_m_step_agrees_with_the_dense_one() {
+    let source = points(400, 4, 1.0);
+    let target: Vec<DVec3> = points(380, 5, 1.0)
+        .into_iter()
+        .map(|p| smooth(p, 0.1))
+        .collect();
+    let dense = CpdParams {
+        beta: 1.0,
+        max_iterations: 30,
+        ..CpdParams::default()
+    };
+    let low = CpdParams {
+        rank: Some(60),
+        ..dense
+    };
+    let a = gpu(&source, &target, &dense);
+    let b = gpu(&source, &target, &low);
+    let diff = max_difference(&a.deformed, &b.deformed);
+    assert!(
+        diff <= 1e-3 * extent(&target),
+        "dense and rank-60 differ by {diff}"
+    );
+}
+
+#[test]
+fn a_target_point_far_from_every_source_point() {
+    let source = points(30, 6, 1.0);
+    let mut target = points(30, 7, 1.0);
+    target.push(DVec3::new(1e4, -1e4, 1e4));
+    let result = gpu(
+        &source,
+        &target,
+        &CpdParams {
+            max_iterations: 30,
+            ..CpdParams::default()
+        },
+    );
+    // The outlier must not drag the set: every moved point stays near the data.
+    assert!(
+        result.deformed.iter().all(|p| p.length() < 5.0),
+        "{:?}",
+        result.deformed
+    );
+}
+
+#[test]
+fn identical_sets_collapse_sigma_without_nan() {
+    let source = points(40, 8, 1.0);
+    let result = gpu(
+        &source,
+        &source,
+        &CpdParams {
+            beta: 0.5,
+            max_iterations: 60,
+            tolerance: 0.0,
+            ..CpdParams::default()
+        },
+    );
+    assert!(
+        result.sigma2.last().unwrap() < &1e-4,
+        "sigma^2 {:?}",
+        result.sigma2.last()
+    );
+    assert!(max_difference(&result.deformed, &source) < 1e-3);
+}
+
+#[test]
+fn different_sizes_and_tiny_sets() {
+    for (m, n) in [(1, 1), (1, 3), (3, 1), (2, 3), (3, 2), (20, 70), (70, 20)] {
+        let source = points(m, 9 + m as u64, 1.0);
+        let target = points(n, 19 + n as u64, 1.0);
+        let result = gpu(
+            &source,
+            &target,
+            &CpdParams {
+                max_iterations: 20,
+                ..CpdParams::default()
+            },
+        );
+        assert_eq!(result.deformed.len(), m);
+    }
+}
+
+/// The same problem in millimetres gives the same result x 1000 (beta is relative to the
+/// source's RMS radius).
+#[test]
+fn millimetres_as_well_as_metres() {
+    let source = points(50, 10, 0.2);
+    let target: Vec<DVec3> = points(50, 11, 0.2)
+        .into_iter()
+        .map(|p| smooth(p, 0.02))
+        .collect();
+    let params = CpdParams {
+        beta: 1.0,
+        max_iterations: 30,
+        ..CpdParams::default()
+    };
+    let metres = gpu(&source, &target, &params);
+    let mm = |v: &[DVec3]| v.iter().map(|p| *p * 1000.0).collect::<Vec<_>>();
+    let millimetres = gpu(&mm(&source), &mm(&target), &params);
+    let diff = max_difference(&mm(&metres.deformed), &millimetres.deformed);
+    assert!(
+        diff <= 1e-3 * extent(&mm(&target)),
+        "mm and m differ by {diff} mm"
+    );
+}
+
+/// A target of 1e5 points (the E-step's work is M x N; M is kept small for CI).
+#[test]
+fn a_target_of_1e5_points() {
+    let source = points(64, 12, 1.0);
+    let target = points(100_000, 13, 1.0);
+    let result = gpu(
+        &source,
+        &target,
+        &CpdParams {
+            max_iterations: 3,
+            ..CpdParams::default()
+        },
+    );
+    assert_eq!(result.iterations, 3);
+}
+
+#[test]
+fn bad_input_is_an_error() {
+    let ctx = common::context();
+    let pipelines = CpdPipelines::new(&ctx).unwrap();
+    let ok = points(5, 1, 1.0);
+    let mut nan = ok.clone();
+    nan[2].y = f64::NAN;
+    for (source, target, params, expected) in [
+        (&ok, &vec![], CpdParams::default(), "empty"),
+        (&nan, &ok, CpdParams::default(), "not finite"),
+        (
+            &ok,
+            &ok,
+            CpdParams {
+                w: 0.0,
+                ..CpdParams::default()
+            },
+            "0 < w < 1",
+        ),
+        (
+            &ok,
+            &ok,
+            CpdParams {
+                beta: -1.0,
+                ..CpdParams::default()
+            },
+            "beta > 0",
+        ),
+    ] {
+        let err = cpd::register(&ctx, &pipelines, source, target, &params, &mut |_, _| {})
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains(expected), "{err}");
+    }
+}
