@@ -1,6 +1,7 @@
 //! The `vkdr` command line: device information, G-buffer renders and the demo.
 
 mod bench;
+mod cpd_cmd;
 mod grad;
 mod pictures;
 
@@ -51,6 +52,25 @@ enum Command {
         #[arg(long, default_value = "mse")]
         loss: String,
         /// Output directory for bench.csv, bench.json and bench.png.
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Non-rigid Coherent Point Drift of SOURCE onto TARGET (OBJ vertices or N x 3 .npy).
+    Cpd {
+        source: PathBuf,
+        target: PathBuf,
+        /// Kernel width, in units of the source's RMS radius.
+        #[arg(long, default_value_t = 2.0)]
+        beta: f64,
+        /// Smoothness weight.
+        #[arg(long = "lambda", default_value_t = 2.0)]
+        lambda: f64,
+        /// Outlier weight, in (0, 1).
+        #[arg(long, default_value_t = 0.1)]
+        w: f64,
+        #[arg(long, default_value_t = 150)]
+        max_iterations: usize,
+        /// Output directory for deformed.npy, W.npy and log.json.
         #[arg(long)]
         out: PathBuf,
     },
@@ -127,6 +147,19 @@ fn main() {
             out,
         } => bench(size, repeats, max_vertices, &loss, &out),
         Command::Demo { out } => demo(&out),
+        Command::Cpd { source, target, beta, lambda, w, max_iterations, out } => {
+            let params = vkdr::cpd::CpdParams { beta, lambda, w, max_iterations, ..Default::default() };
+            cpd_cmd::run(&source, &target, &params, &out).map(|r| {
+                println!(
+                    "{} iterations ({}) in {:.3} s; final sigma^2 {:.3e}; wrote {4}/deformed.npy, {4}/W.npy, {4}/log.json",
+                    r.iterations,
+                    if r.converged { "converged" } else { "iteration limit" },
+                    r.seconds,
+                    r.sigma2.last().copied().unwrap_or(f64::NAN),
+                    out.display()
+                );
+            })
+        }
     };
     if let Err(e) = result {
         eprintln!("error: {e:#}");
