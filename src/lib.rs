@@ -6,6 +6,7 @@
 
 pub mod camera;
 pub mod cpd;
+pub mod dataset;
 pub mod diff;
 pub mod error;
 pub mod gpu;
@@ -14,6 +15,7 @@ pub mod loss;
 pub mod mesh;
 pub mod plot;
 pub mod raster;
+pub mod shape;
 
 pub use camera::{Camera, Pose};
 pub use error::{Error, Result};

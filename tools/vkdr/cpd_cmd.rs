@@ -13,23 +13,42 @@ use vkdr::Mesh;
 
 /// Points of an OBJ file (its vertices) or of an N x 3 .npy (float32 or float64).
 pub fn load_points(path: &Path) -> Result<Vec<DVec3>> {
-    let is_npy = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("npy"));
+    let is_npy = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("npy"));
     if !is_npy {
         let mesh = Mesh::load_obj(path)?;
-        return Ok(mesh.positions().iter().map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)).collect());
+        return Ok(mesh
+            .positions()
+            .iter()
+            .map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+            .collect());
     }
     use ndarray_npy::ReadNpyExt;
     let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
     let array: Array2<f64> = match Array2::<f64>::read_npy(&bytes[..]) {
         Ok(a) => a,
         Err(_) => Array2::<f32>::read_npy(&bytes[..])
-            .with_context(|| format!("{}: expected an N x 3 float32 or float64 array", path.display()))?
+            .with_context(|| {
+                format!(
+                    "{}: expected an N x 3 float32 or float64 array",
+                    path.display()
+                )
+            })?
             .mapv(|v| v as f64),
     };
     if array.ncols() != 3 {
-        bail!("{}: expected N x 3 points, got {:?}", path.display(), array.shape());
+        bail!(
+            "{}: expected N x 3 points, got {:?}",
+            path.display(),
+            array.shape()
+        );
     }
-    Ok(array.rows().into_iter().map(|r| DVec3::new(r[0], r[1], r[2])).collect())
+    Ok(array
+        .rows()
+        .into_iter()
+        .map(|r| DVec3::new(r[0], r[1], r[2]))
+        .collect())
 }
 
 pub fn run(source: &Path, target: &Path, params: &CpdParams, out: &Path) -> Result<CpdResult> {
@@ -37,14 +56,24 @@ pub fn run(source: &Path, target: &Path, params: &CpdParams, out: &Path) -> Resu
     let x = load_points(target)?;
     let ctx = Context::new()?;
     let pipelines = CpdPipelines::new(&ctx)?;
-    eprintln!("CPD: {} source points onto {} target points on {}", y.len(), x.len(), ctx.info().name);
+    eprintln!(
+        "CPD: {} source points onto {} target points on {}",
+        y.len(),
+        x.len(),
+        ctx.info().name
+    );
     let max = params.max_iterations;
     let result = cpd::register(&ctx, &pipelines, &y, &x, params, &mut |i, s2| {
         eprint!("\r  iteration {i:>4}/{max}  sigma^2 {s2:.3e}   ");
     })?;
     eprintln!();
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let matrix = |points: &[DVec3]| Array2::from_shape_vec((points.len(), 3), points.iter().flat_map(|p| p.to_array()).collect());
+    let matrix = |points: &[DVec3]| {
+        Array2::from_shape_vec(
+            (points.len(), 3),
+            points.iter().flat_map(|p| p.to_array()).collect(),
+        )
+    };
     write_npy(&out.join("deformed.npy"), &matrix(&result.deformed)?)?;
     write_npy(&out.join("W.npy"), &matrix(&result.w)?)?;
     let sigma2: Vec<String> = result.sigma2.iter().map(|s| format!("{s:e}")).collect();

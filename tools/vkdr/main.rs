@@ -4,6 +4,7 @@ mod bench;
 mod cpd_cmd;
 mod grad;
 mod pictures;
+mod shape_cmd;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -71,6 +72,39 @@ enum Command {
         #[arg(long, default_value_t = 150)]
         max_iterations: usize,
         /// Output directory for deformed.npy, W.npy and log.json.
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Generate the category dataset (bottle, mug, spray_bottle, drill) in the design's layout.
+    GenDataset {
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Training instances per category.
+        #[arg(long, default_value_t = 10)]
+        train: usize,
+        /// Test instances per category.
+        #[arg(long, default_value_t = 2)]
+        test: usize,
+    },
+    /// Build a category's latent shape space (CPD from the canonical mesh, then PCA).
+    ShapeSpace {
+        /// DIR/<category> with canonical.obj and train/*.obj.
+        category_dir: PathBuf,
+        /// Use train/NAME.obj as the canonical instead of canonical.obj (or `auto`: the
+        /// training instance with the lowest mean nearest-neighbour distance to the others).
+        #[arg(long)]
+        canonical: Option<String>,
+        #[arg(long, default_value_t = 5)]
+        dims: usize,
+        #[arg(long, default_value_t = 2.0)]
+        beta: f64,
+        #[arg(long = "lambda", default_value_t = 2.0)]
+        lambda: f64,
+        #[arg(long, default_value_t = 0.1)]
+        w: f64,
+        /// Output .npz (a .npz.json description is written beside it).
         #[arg(long)]
         out: PathBuf,
     },
@@ -147,8 +181,45 @@ fn main() {
             out,
         } => bench(size, repeats, max_vertices, &loss, &out),
         Command::Demo { out } => demo(&out),
-        Command::Cpd { source, target, beta, lambda, w, max_iterations, out } => {
-            let params = vkdr::cpd::CpdParams { beta, lambda, w, max_iterations, ..Default::default() };
+        Command::GenDataset {
+            out,
+            seed,
+            train,
+            test,
+        } => gen_dataset(&out, seed, train, test),
+        Command::ShapeSpace {
+            category_dir,
+            canonical,
+            dims,
+            beta,
+            lambda,
+            w,
+            out,
+        } => {
+            let params = vkdr::cpd::CpdParams {
+                beta,
+                lambda,
+                w,
+                ..Default::default()
+            };
+            shape_cmd::run(&category_dir, canonical.as_deref(), dims, &params, &out)
+        }
+        Command::Cpd {
+            source,
+            target,
+            beta,
+            lambda,
+            w,
+            max_iterations,
+            out,
+        } => {
+            let params = vkdr::cpd::CpdParams {
+                beta,
+                lambda,
+                w,
+                max_iterations,
+                ..Default::default()
+            };
             cpd_cmd::run(&source, &target, &params, &out).map(|r| {
                 println!(
                     "{} iterations ({}) in {:.3} s; final sigma^2 {:.3e}; wrote {4}/deformed.npy, {4}/W.npy, {4}/log.json",
@@ -373,6 +444,19 @@ fn write_views(
         }
     }
     Ok(written)
+}
+
+fn gen_dataset(out: &Path, seed: u64, train: usize, test: usize) -> Result<()> {
+    let dirs = vkdr::dataset::generate(out, seed, train, test, |category, done, total| {
+        eprint!("\r  {category:<14} {done:>3}/{total}");
+        if done == total {
+            eprintln!();
+        }
+    })?;
+    for dir in dirs {
+        println!("wrote {}", dir.display());
+    }
+    Ok(())
 }
 
 fn demo(out: &Path) -> Result<()> {

@@ -1,0 +1,457 @@
+//! The latent shape space of a category: CPD from the canonical mesh's vertices C to each
+//! training instance gives W_i (T_i = C + G W_i); PCA of the flattened W_i gives
+//! W(s) = mean + U s; the deformed vertices are `C + d0 + B s` with `d0 = G mean` and
+//! `B = G U` precomputed. The inverse (the evaluation oracle) is the latent code that best
+//! explains a given 3D instance: CPD to it, then projection on U.
+//!
+//! Files: an `.npz` (arrays below) and a JSON description beside it (`<file>.json`) with
+//! a format version; loading checks both and refuses corrupt or mismatched files.
+
+use std::path::{Path, PathBuf};
+
+use glam::DVec3;
+use ndarray::{Array1, Array2};
+
+use crate::cpd::{self, linalg, CpdParams, CpdPipelines, Normalization};
+use crate::error::{Error, Result};
+use crate::gpu::Context;
+use crate::io::write_atomically;
+use crate::mesh::Mesh;
+
+pub const FORMAT_VERSION: u32 = 1;
+
+/// A category's latent shape space.
+#[derive(Clone, Debug)]
+pub struct ShapeSpace {
+    pub canonical: Mesh,
+    /// Kernel width in the data's units (the CPD beta times the canonical's RMS radius).
+    pub beta: f64,
+    /// Mean of the training W, M x 3 (flattened row-major as in `basis`).
+    pub mean: Vec<f64>,
+    /// Principal directions of W, k x 3M.
+    pub basis: Vec<Vec<f64>>,
+    pub singular_values: Vec<f64>,
+    /// Latent codes of the training instances, T x k.
+    pub training_codes: Vec<Vec<f64>>,
+    /// Fraction of the training variance each dimension explains.
+    pub explained_variance: Vec<f64>,
+    /// d0 = G mean, M x 3 flattened.
+    pub offset: Vec<f64>,
+    /// B = G U: k x 3M (dimension j's displacement of every vertex).
+    pub deformation_basis: Vec<Vec<f64>>,
+    pub category: String,
+    pub training_names: Vec<String>,
+}
+
+fn points_of(mesh: &Mesh) -> Vec<DVec3> {
+    mesh.positions()
+        .iter()
+        .map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+        .collect()
+}
+
+/// G applied to a flattened M x 3 field, with G in data units.
+fn kernel_apply(canonical: &[DVec3], beta: f64, field: &[f64]) -> Vec<f64> {
+    let g = cpd::kernel_matrix(canonical, beta);
+    let f = linalg::Matrix {
+        rows: canonical.len(),
+        cols: 3,
+        data: field.to_vec(),
+    };
+    g.mul(&f).data
+}
+
+impl ShapeSpace {
+    /// Builds the space from the canonical mesh and training instances (points), with at
+    /// most `dims` dimensions (never more than the training set supports: T - 1).
+    pub fn build(
+        ctx: &Context,
+        category: &str,
+        canonical: &Mesh,
+        training: &[(String, Vec<DVec3>)],
+        dims: usize,
+        params: &CpdParams,
+        mut progress: impl FnMut(usize, usize, &str),
+    ) -> Result<Self> {
+        if training.len() < 2 {
+            return Err(Error::InvalidInput(format!(
+                "a shape space needs at least 2 training instances, got {}",
+                training.len()
+            )));
+        }
+        if canonical.vertex_count() > CpdParams::DENSE_LIMIT {
+            return Err(Error::InvalidInput(format!(
+                "the canonical mesh has {} vertices; shape spaces support up to {} (dense kernel)",
+                canonical.vertex_count(),
+                CpdParams::DENSE_LIMIT
+            )));
+        }
+        let c = points_of(canonical);
+        let pipelines = CpdPipelines::new(ctx)?;
+        let mut ws = Vec::new();
+        for (i, (name, points)) in training.iter().enumerate() {
+            progress(i, training.len(), name);
+            let result = cpd::register(ctx, &pipelines, &c, points, params, &mut |_, _| {})?;
+            ws.push(
+                result
+                    .w
+                    .iter()
+                    .flat_map(|w| w.to_array())
+                    .collect::<Vec<f64>>(),
+            );
+        }
+        progress(training.len(), training.len(), "");
+        let beta = params.beta * Normalization::of(&c).scale;
+        Self::from_coefficients(
+            category,
+            canonical,
+            beta,
+            &ws,
+            dims,
+            training.iter().map(|t| t.0.clone()).collect(),
+        )
+    }
+
+    /// PCA of the flattened coefficients (T x 3M) through the T x T Gram matrix.
+    pub fn from_coefficients(
+        category: &str,
+        canonical: &Mesh,
+        beta: f64,
+        ws: &[Vec<f64>],
+        dims: usize,
+        names: Vec<String>,
+    ) -> Result<Self> {
+        let t = ws.len();
+        let d = ws[0].len();
+        let mean: Vec<f64> = (0..d)
+            .map(|j| ws.iter().map(|w| w[j]).sum::<f64>() / t as f64)
+            .collect();
+        let centred: Vec<Vec<f64>> = ws
+            .iter()
+            .map(|w| w.iter().zip(&mean).map(|(a, b)| a - b).collect())
+            .collect();
+        let mut gram = linalg::Matrix::zeros(t, t);
+        for i in 0..t {
+            for j in 0..t {
+                gram.set(
+                    i,
+                    j,
+                    centred[i].iter().zip(&centred[j]).map(|(a, b)| a * b).sum(),
+                );
+            }
+        }
+        let (values, vectors) = linalg::symmetric_eigen(&gram);
+        let total: f64 = values.iter().map(|v| v.max(0.0)).sum();
+        let k = dims.min(t - 1).min(
+            values
+                .iter()
+                .filter(|&&v| v > 1e-12 * total.max(f64::MIN_POSITIVE))
+                .count(),
+        );
+        if k == 0 {
+            return Err(Error::InvalidInput(
+                "the training instances do not vary: the shape space would be empty".into(),
+            ));
+        }
+        let mut basis = Vec::new();
+        let mut singular_values = Vec::new();
+        for j in 0..k {
+            let sigma = values[j].max(0.0).sqrt();
+            // u_j = X^T v_j / sigma_j
+            let u: Vec<f64> = (0..d)
+                .map(|c| {
+                    (0..t)
+                        .map(|i| centred[i][c] * vectors.at(i, j))
+                        .sum::<f64>()
+                        / sigma
+                })
+                .collect();
+            basis.push(u);
+            singular_values.push(sigma);
+        }
+        let training_codes = centred
+            .iter()
+            .map(|w| basis.iter().map(|u| dot(u, w)).collect())
+            .collect();
+        let explained_variance = values[..k].iter().map(|v| v / total).collect();
+        let c = points_of(canonical);
+        let offset = kernel_apply(&c, beta, &mean);
+        let deformation_basis = basis.iter().map(|u| kernel_apply(&c, beta, u)).collect();
+        Ok(Self {
+            canonical: canonical.clone(),
+            beta,
+            mean,
+            basis,
+            singular_values,
+            training_codes,
+            explained_variance,
+            offset,
+            deformation_basis,
+            category: category.into(),
+            training_names: names,
+        })
+    }
+
+    pub fn dims(&self) -> usize {
+        self.basis.len()
+    }
+
+    /// Vertices of the deformed canonical mesh for latent code `s`: C + d0 + B s.
+    pub fn vertices(&self, s: &[f64]) -> Result<Vec<DVec3>> {
+        if s.len() != self.dims() {
+            return Err(Error::InvalidInput(format!(
+                "latent code of {} values for a {}-dimensional space",
+                s.len(),
+                self.dims()
+            )));
+        }
+        let mut field = self.offset.clone();
+        for (b, &sj) in self.deformation_basis.iter().zip(s) {
+            for (f, v) in field.iter_mut().zip(b) {
+                *f += sj * v;
+            }
+        }
+        Ok(points_of(&self.canonical)
+            .iter()
+            .enumerate()
+            .map(|(i, c)| *c + DVec3::new(field[3 * i], field[3 * i + 1], field[3 * i + 2]))
+            .collect())
+    }
+
+    /// The latent code of coefficients W (flattened M x 3): U^T (W - mean).
+    pub fn code_of_coefficients(&self, w: &[f64]) -> Vec<f64> {
+        let centred: Vec<f64> = w.iter().zip(&self.mean).map(|(a, b)| a - b).collect();
+        self.basis.iter().map(|u| dot(u, &centred)).collect()
+    }
+
+    /// The oracle: the latent code that best explains the 3D instance `points` (CPD of
+    /// the canonical onto it, projected on the space).
+    pub fn oracle_code(
+        &self,
+        ctx: &Context,
+        points: &[DVec3],
+        params: &CpdParams,
+    ) -> Result<Vec<f64>> {
+        let pipelines = CpdPipelines::new(ctx)?;
+        let c = points_of(&self.canonical);
+        let result = cpd::register(ctx, &pipelines, &c, points, params, &mut |_, _| {})?;
+        Ok(self.code_of_coefficients(
+            &result
+                .w
+                .iter()
+                .flat_map(|w| w.to_array())
+                .collect::<Vec<_>>(),
+        ))
+    }
+
+    /// Writes `path` (.npz) and `path.json`.
+    pub fn save(&self, path: &Path) -> Result<()> {
+        let m = self.canonical.vertex_count();
+        let k = self.dims();
+        let t = self.training_codes.len();
+        let err = |e: ndarray::ShapeError| Error::InvalidInput(e.to_string());
+        let flat = |rows: &[Vec<f64>], cols: usize| {
+            Array2::from_shape_vec((rows.len(), cols), rows.concat()).map_err(err)
+        };
+        let mut bytes = Vec::new();
+        {
+            let mut npz = ndarray_npy::NpzWriter::new(std::io::Cursor::new(&mut bytes));
+            let npz_err = |e: ndarray_npy::WriteNpzError| Error::format(path, e.to_string());
+            let canonical: Vec<f64> = points_of(&self.canonical)
+                .iter()
+                .flat_map(|p| p.to_array())
+                .collect();
+            npz.add_array(
+                "canonical_vertices",
+                &Array2::from_shape_vec((m, 3), canonical).map_err(err)?,
+            )
+            .map_err(npz_err)?;
+            let faces: Vec<u32> = self
+                .canonical
+                .triangles()
+                .iter()
+                .flatten()
+                .copied()
+                .collect();
+            npz.add_array(
+                "canonical_faces",
+                &Array2::from_shape_vec((self.canonical.triangle_count(), 3), faces)
+                    .map_err(err)?,
+            )
+            .map_err(npz_err)?;
+            npz.add_array("beta", &Array1::from_vec(vec![self.beta]))
+                .map_err(npz_err)?;
+            npz.add_array(
+                "mean",
+                &Array2::from_shape_vec((m, 3), self.mean.clone()).map_err(err)?,
+            )
+            .map_err(npz_err)?;
+            npz.add_array("basis", &flat(&self.basis, 3 * m)?)
+                .map_err(npz_err)?;
+            npz.add_array(
+                "singular_values",
+                &Array1::from_vec(self.singular_values.clone()),
+            )
+            .map_err(npz_err)?;
+            npz.add_array("training_codes", &flat(&self.training_codes, k)?)
+                .map_err(npz_err)?;
+            npz.add_array(
+                "explained_variance",
+                &Array1::from_vec(self.explained_variance.clone()),
+            )
+            .map_err(npz_err)?;
+            npz.add_array(
+                "offset",
+                &Array2::from_shape_vec((m, 3), self.offset.clone()).map_err(err)?,
+            )
+            .map_err(npz_err)?;
+            npz.add_array("deformation_basis", &flat(&self.deformation_basis, 3 * m)?)
+                .map_err(npz_err)?;
+            npz.finish().map_err(npz_err)?;
+        }
+        write_atomically(path, &bytes)?;
+        let names: Vec<String> = self
+            .training_names
+            .iter()
+            .map(|n| format!("{n:?}"))
+            .collect();
+        let json = format!(
+            "{{\n  \"format_version\": {FORMAT_VERSION},\n  \"category\": {:?},\n  \"vertices\": {m},\n  \"faces\": {},\n  \"dims\": {k},\n  \"training_instances\": {t},\n  \"training_names\": [{}],\n  \"beta\": {},\n  \"explained_variance\": {:?},\n  \"arrays\": \"{}\"\n}}\n",
+            self.category,
+            self.canonical.triangle_count(),
+            names.join(", "),
+            self.beta,
+            self.explained_variance,
+            path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()
+        );
+        write_atomically(&description_path(path), json.as_bytes())
+    }
+
+    /// Loads and checks a saved space.
+    pub fn load(path: &Path) -> Result<Self> {
+        let description = description_path(path);
+        let json = std::fs::read_to_string(&description).map_err(|e| Error::io(&description, e))?;
+        let version = json_number(&json, "format_version")
+            .ok_or_else(|| Error::format(&description, "no format_version"))?;
+        if version != FORMAT_VERSION as f64 {
+            return Err(Error::format(
+                &description,
+                format!("format version {version}, this vkdr reads {FORMAT_VERSION}"),
+            ));
+        }
+        let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+        let mut npz = ndarray_npy::NpzReader::new(file)
+            .map_err(|e| Error::format(path, format!("not a readable .npz: {e}")))?;
+        let bad = |what: &str| Error::format(path, what.to_string());
+        let mut get2 = |name: &str| -> Result<Array2<f64>> {
+            npz.by_name::<ndarray::OwnedRepr<f64>, ndarray::Ix2>(name)
+                .map_err(|e| Error::format(path, format!("{name}: {e}")))
+        };
+        let vertices = get2("canonical_vertices")?;
+        let mean = get2("mean")?;
+        let basis = get2("basis")?;
+        let codes = get2("training_codes")?;
+        let offset = get2("offset")?;
+        let deformation = get2("deformation_basis")?;
+        let faces: Array2<u32> = npz
+            .by_name("canonical_faces")
+            .map_err(|e| Error::format(path, format!("canonical_faces: {e}")))?;
+        let mut get1 = |name: &str| -> Result<Vec<f64>> {
+            npz.by_name::<ndarray::OwnedRepr<f64>, ndarray::Ix1>(name)
+                .map(|a| a.to_vec())
+                .map_err(|e| Error::format(path, format!("{name}: {e}")))
+        };
+        let beta = get1("beta")?;
+        let singular_values = get1("singular_values")?;
+        let explained_variance = get1("explained_variance")?;
+        let m = vertices.nrows();
+        let k = basis.nrows();
+        let shapes_ok = vertices.ncols() == 3
+            && mean.dim() == (m, 3)
+            && offset.dim() == (m, 3)
+            && basis.ncols() == 3 * m
+            && deformation.dim() == (k, 3 * m)
+            && codes.ncols() == k
+            && singular_values.len() == k
+            && explained_variance.len() == k
+            && beta.len() == 1
+            && faces.ncols() == 3;
+        if !shapes_ok {
+            return Err(bad("array shapes do not fit together"));
+        }
+        for (key, expected) in [("vertices", m), ("dims", k), ("faces", faces.nrows())] {
+            if json_number(&json, key) != Some(expected as f64) {
+                return Err(Error::format(
+                    &description,
+                    format!("\"{key}\" does not match {}", path.display()),
+                ));
+            }
+        }
+        let all = [&vertices, &mean, &basis, &codes, &offset, &deformation];
+        if all.iter().any(|a| a.iter().any(|v| !v.is_finite()))
+            || !beta[0].is_finite()
+            || beta[0] <= 0.0
+        {
+            return Err(bad("non-finite values"));
+        }
+        let positions = vertices
+            .rows()
+            .into_iter()
+            .map(|r| [r[0] as f32, r[1] as f32, r[2] as f32])
+            .collect();
+        let triangles = faces
+            .rows()
+            .into_iter()
+            .map(|r| [r[0], r[1], r[2]])
+            .collect();
+        let canonical =
+            Mesh::new(positions, triangles).map_err(|e| Error::format(path, e.to_string()))?;
+        let rows = |a: &Array2<f64>| a.rows().into_iter().map(|r| r.to_vec()).collect::<Vec<_>>();
+        Ok(Self {
+            canonical,
+            beta: beta[0],
+            mean: mean.iter().copied().collect(),
+            basis: rows(&basis),
+            singular_values,
+            training_codes: rows(&codes),
+            explained_variance,
+            offset: offset.iter().copied().collect(),
+            deformation_basis: rows(&deformation),
+            category: json_string(&json, "category").unwrap_or_default(),
+            training_names: Vec::new(),
+        })
+    }
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+fn description_path(path: &Path) -> PathBuf {
+    let mut name = path.as_os_str().to_owned();
+    name.push(".json");
+    PathBuf::from(name)
+}
+
+/// The number after `"key":` in a flat JSON object (our own files only).
+fn json_number(json: &str, key: &str) -> Option<f64> {
+    let at = json.find(&format!("\"{key}\""))?;
+    let rest = json[at + key.len() + 2..]
+        .trim_start()
+        .strip_prefix(':')?
+        .trim_start();
+    let end = rest
+        .find(|c: char| !(c.is_ascii_digit() || "+-.eE".contains(c)))
+        .unwrap_or(rest.len());
+    rest[..end].parse().ok()
+}
+
+fn json_string(json: &str, key: &str) -> Option<String> {
+    let at = json.find(&format!("\"{key}\""))?;
+    let rest = json[at + key.len() + 2..]
+        .trim_start()
+        .strip_prefix(':')?
+        .trim_start()
+        .strip_prefix('"')?;
+    Some(rest[..rest.find('"')?].to_string())
+}

@@ -1,0 +1,145 @@
+//! Shape space: build from a generated category, round trip through its file, the oracle,
+//! and refusal of corrupt files.
+
+mod common;
+
+use glam::DVec3;
+use vkdr::cpd::{self, CpdParams, CpdPipelines};
+use vkdr::dataset::{instance, Rng};
+use vkdr::shape::ShapeSpace;
+
+fn points(mesh: &vkdr::Mesh) -> Vec<DVec3> {
+    mesh.positions()
+        .iter()
+        .map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+        .collect()
+}
+
+fn small_space(
+    ctx: &vkdr::gpu::Context,
+    training: usize,
+    dims: usize,
+) -> (ShapeSpace, Vec<(String, Vec<DVec3>)>) {
+    let mut rng = Rng::new(3);
+    let canonical = instance("bottle", &mut rng).unwrap();
+    let train: Vec<(String, Vec<DVec3>)> = (0..training)
+        .map(|i| {
+            (
+                format!("bottle_{i}"),
+                points(&instance("bottle", &mut rng).unwrap()),
+            )
+        })
+        .collect();
+    let params = CpdParams {
+        max_iterations: 60,
+        ..CpdParams::default()
+    };
+    let space = ShapeSpace::build(
+        ctx,
+        "bottle",
+        &canonical,
+        &train,
+        dims,
+        &params,
+        |_, _, _| {},
+    )
+    .unwrap();
+    (space, train)
+}
+
+#[test]
+fn oracle_of_a_training_instance_reproduces_its_cpd_result() {
+    let ctx = common::context();
+    let (space, train) = small_space(&ctx, 4, 5);
+    assert_eq!(
+        space.dims(),
+        3,
+        "4 training instances support 3 dimensions, not 5"
+    );
+    let total: f64 = space.explained_variance.iter().sum();
+    assert!(
+        (total - 1.0).abs() < 1e-9,
+        "all variance explained: {total}"
+    );
+    let params = CpdParams {
+        max_iterations: 60,
+        ..CpdParams::default()
+    };
+    let canonical = points(&space.canonical);
+    let pipelines = CpdPipelines::new(&ctx).unwrap();
+    for (i, (_, target)) in train.iter().enumerate() {
+        let code = space.oracle_code(&ctx, target, &params).unwrap();
+        for (a, b) in code.iter().zip(&space.training_codes[i]) {
+            assert!(
+                (a - b).abs() <= 1e-6 * (1.0 + b.abs()),
+                "code {code:?} vs {:?}",
+                space.training_codes[i]
+            );
+        }
+        let cpd_result = cpd::register(
+            &ctx,
+            &pipelines,
+            &canonical,
+            target,
+            &params,
+            &mut |_, _| {},
+        )
+        .unwrap();
+        let from_space = space.vertices(&code).unwrap();
+        let worst = from_space
+            .iter()
+            .zip(&cpd_result.deformed)
+            .map(|(a, b)| (*a - *b).length())
+            .fold(0.0, f64::max);
+        assert!(
+            worst < 1e-6,
+            "instance {i}: shape space and CPD differ by {worst} m"
+        );
+    }
+    common::assert_no_validation_errors(&ctx);
+}
+
+#[test]
+fn round_trips_through_its_file_and_refuses_corrupt_ones() {
+    let ctx = common::context();
+    let (space, _) = small_space(&ctx, 3, 2);
+    let dir = std::env::temp_dir().join(format!("vkdr-shape-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("bottle.npz");
+    space.save(&path).unwrap();
+    let loaded = ShapeSpace::load(&path).unwrap();
+    assert_eq!(loaded.dims(), space.dims());
+    assert_eq!(loaded.canonical.triangles(), space.canonical.triangles());
+    let code = vec![0.3; space.dims()];
+    let (a, b) = (
+        space.vertices(&code).unwrap(),
+        loaded.vertices(&code).unwrap(),
+    );
+    assert!(a.iter().zip(&b).all(|(p, q)| (*p - *q).length() < 1e-12));
+
+    // A truncated archive.
+    let bytes = std::fs::read(&path).unwrap();
+    std::fs::write(&path, &bytes[..bytes.len() / 2]).unwrap();
+    assert!(ShapeSpace::load(&path).is_err());
+    std::fs::write(&path, &bytes).unwrap();
+    // A description of another version or another shape.
+    let json_path = dir.join("bottle.npz.json");
+    let json = std::fs::read_to_string(&json_path).unwrap();
+    std::fs::write(
+        &json_path,
+        json.replace("\"format_version\": 1", "\"format_version\": 99"),
+    )
+    .unwrap();
+    let err = ShapeSpace::load(&path).unwrap_err().to_string();
+    assert!(err.contains("version"), "{err}");
+    std::fs::write(&json_path, json.replace("\"dims\": 2", "\"dims\": 4")).unwrap();
+    let err = ShapeSpace::load(&path).unwrap_err().to_string();
+    assert!(err.contains("dims"), "{err}");
+    std::fs::write(&json_path, &json).unwrap();
+    assert!(ShapeSpace::load(&path).is_ok());
+    assert!(
+        space.vertices(&[1.0]).is_err(),
+        "a code of the wrong length is an error"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
