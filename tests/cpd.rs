@@ -282,3 +282,35 @@ fn bad_input_is_an_error() {
         assert!(err.contains(expected), "{err}");
     }
 }
+
+/// The device's Gaussian kernel product against the dense float64 one (relative 1e-4).
+#[test]
+fn kernel_product_matches_float64() {
+    use vkdr::cpd::{linalg::Matrix, Backend, GpuBackend};
+    let ctx = common::context();
+    let pipelines = CpdPipelines::new(&ctx).unwrap();
+    let y = points(150, 21, 2.0);
+    let mut backend = GpuBackend::new(&ctx, &pipelines, &y, &y, 0.7).unwrap();
+    let cols = 21; // more than one block of 16, and a partial one
+    let v = Matrix {
+        rows: 150,
+        cols,
+        data: (0..150 * cols)
+            .map(|i| ((i * 7919) % 101) as f64 / 50.0 - 1.0)
+            .collect(),
+    };
+    let got = backend.kernel_product(&v).unwrap();
+    let want = cpd::kernel_matrix(&y, 0.7).mul(&v);
+    let scale = want.data.iter().map(|x| x.abs()).fold(0.0, f64::max);
+    let worst = got
+        .data
+        .iter()
+        .zip(&want.data)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    assert!(
+        worst <= 1e-4 * scale,
+        "kernel product off by {worst} (scale {scale})"
+    );
+    common::assert_no_validation_errors(&ctx);
+}

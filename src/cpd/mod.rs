@@ -206,6 +206,7 @@ fn top_eigenpairs(backend: &mut dyn Backend, m: usize, rank: usize) -> Result<Ke
         }
     }
     orthonormalize(&mut q);
+    // The spectrum of a Gaussian kernel decays fast: a few power steps suffice.
     for _ in 0..6 {
         q = backend.kernel_product(&q)?;
         orthonormalize(&mut q);
@@ -460,8 +461,8 @@ impl<'a> GpuBackend<'a> {
             log_den: device("cpd log denominators", n * 4)?,
             sums: device("cpd sums", m * 16)?,
             source_points: Buffer::from_slice(ctx, "cpd source", &vec4s(source, offset))?,
-            columns: device("kernel columns", m * 16)?,
-            product: device("kernel product", m * 16)?,
+            columns: device("kernel columns", m * 64)?,
+            product: device("kernel product", m * 64)?,
         })
     }
 }
@@ -534,8 +535,8 @@ impl Backend for GpuBackend<'_> {
             m: m as u32,
             inv_two_beta2: (0.5 / (self.beta * self.beta)) as f32,
         };
-        for block in (0..v.cols).step_by(4) {
-            let columns: Vec<[f32; 4]> = (0..m)
+        for block in (0..v.cols).step_by(16) {
+            let columns: Vec<[f32; 16]> = (0..m)
                 .map(|i| {
                     std::array::from_fn(|c| {
                         if block + c < v.cols {
@@ -561,9 +562,9 @@ impl Backend for GpuBackend<'_> {
             rec.compute_constants(&p.gauss, &constants);
             rec.dispatch((m as u32).div_ceil(64), 1, 1);
             self.ctx.submit_and_wait(rec)?;
-            let product = self.product.read_range::<[f32; 4]>(0, m)?;
+            let product = self.product.read_range::<[f32; 16]>(0, m)?;
             for (i, row) in product.iter().enumerate() {
-                for c in 0..4.min(v.cols - block) {
+                for c in 0..16.min(v.cols - block) {
                     out.set(i, block + c, row[c] as f64);
                 }
             }
