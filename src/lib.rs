@@ -15,6 +15,7 @@ pub mod loss;
 pub mod mesh;
 pub mod plot;
 pub mod raster;
+pub mod register;
 pub mod shape;
 
 pub use camera::{Camera, Pose};

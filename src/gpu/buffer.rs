@@ -112,6 +112,15 @@ impl Buffer {
         allocation.mapped_slice_mut().filter(|_| coherent)
     }
 
+    /// The mapped bytes for reading, when host-visible and coherent.
+    fn mapped_for_reading(&self) -> Option<&[u8]> {
+        let allocation = self.allocation.as_ref()?;
+        let coherent = allocation
+            .memory_properties()
+            .contains(vk::MemoryPropertyFlags::HOST_COHERENT);
+        allocation.mapped_slice().filter(|_| coherent)
+    }
+
     /// Writes `data` at byte `offset`, directly when mapped, else through a staging copy.
     /// Blocks until the data is in place; the device must not be using the buffer.
     pub fn write<T: bytemuck::Pod>(&mut self, offset: u64, data: &[T]) -> Result<()> {
@@ -145,13 +154,13 @@ impl Buffer {
     }
 
     /// Reads the whole buffer back as `T`s (the device must be done writing it).
-    pub fn read<T: bytemuck::Pod>(&mut self) -> Result<Vec<T>> {
+    pub fn read<T: bytemuck::Pod>(&self) -> Result<Vec<T>> {
         let count = self.size as usize / std::mem::size_of::<T>();
         self.read_range(0, count)
     }
 
     /// Reads `count` values of `T` from byte `offset`.
-    pub fn read_range<T: bytemuck::Pod>(&mut self, offset: u64, count: usize) -> Result<Vec<T>> {
+    pub fn read_range<T: bytemuck::Pod>(&self, offset: u64, count: usize) -> Result<Vec<T>> {
         let len = (count * std::mem::size_of::<T>()) as u64;
         if offset + len > self.size {
             return Err(Error::InvalidInput(format!(
@@ -163,19 +172,21 @@ impl Buffer {
         if len == 0 {
             return Ok(out);
         }
-        if let Some(mapped) = self.mapped() {
+        if let Some(mapped) = self.mapped_for_reading() {
             bytemuck::cast_slice_mut(&mut out)
                 .copy_from_slice(&mapped[offset as usize..(offset + len) as usize]);
             return Ok(out);
         }
-        let mut staging = Buffer::new(&self.ctx, "staging readback", len, BufferKind::Readback)?;
+        let staging = Buffer::new(&self.ctx, "staging readback", len, BufferKind::Readback)?;
         let mut rec = Recorder::new(&self.ctx)?;
         rec.copy_buffer(self, offset, &staging, 0, len);
         self.ctx.submit_and_wait(rec)?;
-        let mapped = staging.mapped().ok_or_else(|| Error::Allocation {
-            name: "staging readback".into(),
-            reason: "readback memory is not host-visible and coherent".into(),
-        })?;
+        let mapped = staging
+            .mapped_for_reading()
+            .ok_or_else(|| Error::Allocation {
+                name: "staging readback".into(),
+                reason: "readback memory is not host-visible and coherent".into(),
+            })?;
         bytemuck::cast_slice_mut(&mut out).copy_from_slice(&mapped[..len as usize]);
         Ok(out)
     }

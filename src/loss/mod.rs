@@ -220,7 +220,7 @@ impl DistanceField {
         let bytes = Self::scratch_bytes(width, height, 1);
         let a = Buffer::new(ctx, "jump flooding a", bytes, BufferKind::Device)?;
         let b = Buffer::new(ctx, "jump flooding b", bytes, BufferKind::Device)?;
-        let mut distance = Buffer::new(ctx, "distance field", bytes / 2, BufferKind::Device)?;
+        let distance = Buffer::new(ctx, "distance field", bytes / 2, BufferKind::Device)?;
         let mut rec = Recorder::new(ctx)?;
         self.record(&mut rec, &masks, [&a, &b], &distance, (width, height, 1))?;
         ctx.submit_and_wait(rec)?;

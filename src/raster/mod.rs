@@ -36,7 +36,8 @@ pub struct View {
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
 pub struct ViewData {
-    object_to_camera: [[f32; 4]; 4],
+    /// Column-major object-to-camera matrix.
+    pub object_to_camera: [[f32; 4]; 4],
     intrinsics: [f32; 4],
     size: [f32; 2],
     near: f32,
@@ -126,6 +127,11 @@ impl ViewBuffers {
 
     pub fn height(&self) -> u32 {
         self.height
+    }
+
+    /// Reads the views' data back (poses may have been updated on the device).
+    pub fn read_data(&self) -> Result<Vec<ViewData>> {
+        self.views.read_range::<ViewData>(0, self.count as usize)
     }
 
     /// The `ViewData` array.
@@ -574,7 +580,7 @@ impl Rasterizer {
         let (w, h, n) = (first.camera.width, first.camera.height, views.len() as u32);
         let buffers = MeshBuffers::new(ctx, mesh)?;
         let target = ShadedTarget::new(ctx, w, h, n)?;
-        let mut readback = Buffer::new(
+        let readback = Buffer::new(
             ctx,
             "readback colour",
             target.colour.byte_size(),

@@ -1,0 +1,101 @@
+#version 460
+// One optimiser step on the device (a single invocation): SGD with momentum and
+// exponential learning-rate decay (or Adam) for the latent code every iteration, and
+// for the pose every pc.pose_every iterations; records the loss. The pose lives in the
+// views buffer (object_to_camera), updated as t -= step, R = exp(-[step]x) R (the
+// rotation increment is applied on the left, as the pose gradient is defined).
+//
+// State layout (floats): see `register::State`.
+#include "views.glsl"
+
+layout(local_size_x = 1) in;
+
+layout(set = 0, binding = 0, std430) buffer State { float state[]; };
+layout(set = 0, binding = 1, std430) readonly buffer GradLatent { float grad_latent[]; };
+layout(set = 0, binding = 2, std430) readonly buffer GradPose { float grad_pose[]; };
+layout(set = 0, binding = 3, std430) readonly buffer Stats { float stats[]; };
+layout(set = 0, binding = 4, std430) buffer Views { ViewData views[]; };
+
+layout(push_constant, std430) uniform Constants {
+    uint dims;
+    uint pose_every;     // 0: pose fixed
+    uint optimize_z;
+    uint adam;
+    float momentum;
+    float decay;
+    float latent_step;   // length of the first latent step (unit-variance code units)
+    float translation_step;  // metres
+    float rotation_step;     // radians
+    uint max_iterations;
+} pc;
+
+// Offsets into `state`.
+const uint ITERATION = 0u;
+const uint LR_LATENT = 1u;
+const uint LR_TRANSLATION = 2u;
+const uint LR_ROTATION = 3u;
+const uint POSE_STEPS = 4u;
+const uint LATENT = 8u;
+uint velocity_at() { return LATENT + pc.dims; }
+uint second_moment_at() { return LATENT + 2u * pc.dims; }
+uint pose_velocity_at() { return LATENT + 3u * pc.dims; }
+uint losses_at() { return LATENT + 3u * pc.dims + 6u; }
+
+mat3 rodrigues(vec3 w) {
+    float angle = length(w);
+    if (angle < 1e-12) return mat3(1.0) + mat3(0.0, w.z, -w.y, -w.z, 0.0, w.x, w.y, -w.x, 0.0);
+    vec3 k = w / angle;
+    mat3 K = mat3(0.0, k.z, -k.y, -k.z, 0.0, k.x, k.y, -k.x, 0.0);
+    return mat3(1.0) + sin(angle) * K + (1.0 - cos(angle)) * K * K;
+}
+
+void main() {
+    uint t = uint(state[ITERATION]);
+    if (t < pc.max_iterations) state[losses_at() + t] = stats[3];
+    float decay = pow(pc.decay, float(t));
+
+    // Latent code.
+    float norm = 0.0;
+    for (uint j = 0u; j < pc.dims; ++j) norm += grad_latent[j] * grad_latent[j];
+    norm = sqrt(norm);
+    if (t == 0u) state[LR_LATENT] = norm > 0.0 ? pc.latent_step / norm : 0.0;
+    for (uint j = 0u; j < pc.dims; ++j) {
+        float g = grad_latent[j];
+        float v = pc.momentum * state[velocity_at() + j] + g;
+        state[velocity_at() + j] = v;
+        float step = state[LR_LATENT] * decay * v;
+        if (pc.adam != 0u) {
+            float m2 = 0.999 * state[second_moment_at() + j] + 0.001 * g * g;
+            state[second_moment_at() + j] = m2;
+            float m1 = v * (1.0 - pc.momentum);
+            float bias1 = 1.0 - pow(pc.momentum, float(t + 1u));
+            float bias2 = 1.0 - pow(0.999, float(t + 1u));
+            step = pc.latent_step * decay * (m1 / bias1) / (sqrt(m2 / bias2) + 1e-12);
+        }
+        state[LATENT + j] -= step;
+    }
+
+    // Pose, once every pc.pose_every iterations.
+    if (pc.pose_every > 0u && (t + 1u) % pc.pose_every == 0u) {
+        vec3 gt = vec3(grad_pose[0], grad_pose[1], pc.optimize_z != 0u ? grad_pose[2] : 0.0);
+        vec3 gr = vec3(grad_pose[3], grad_pose[4], grad_pose[5]);
+        uint k = uint(state[POSE_STEPS]);
+        if (k == 0u) {
+            state[LR_TRANSLATION] = length(gt) > 0.0 ? pc.translation_step / length(gt) : 0.0;
+            state[LR_ROTATION] = length(gr) > 0.0 ? pc.rotation_step / length(gr) : 0.0;
+        }
+        float pose_decay = pow(pc.decay, float(k));
+        vec3 vt = pc.momentum * vec3(state[pose_velocity_at()], state[pose_velocity_at() + 1u], state[pose_velocity_at() + 2u]) + gt;
+        vec3 vr = pc.momentum * vec3(state[pose_velocity_at() + 3u], state[pose_velocity_at() + 4u], state[pose_velocity_at() + 5u]) + gr;
+        for (uint c = 0u; c < 3u; ++c) {
+            state[pose_velocity_at() + c] = vt[c];
+            state[pose_velocity_at() + 3u + c] = vr[c];
+        }
+        mat4 m = views[0].object_to_camera;
+        mat3 r = rodrigues(-state[LR_ROTATION] * pose_decay * vr) * mat3(m);
+        vec3 translation = m[3].xyz - state[LR_TRANSLATION] * pose_decay * vt;
+        views[0].object_to_camera = mat4(vec4(r[0], 0.0), vec4(r[1], 0.0), vec4(r[2], 0.0), vec4(translation, 1.0));
+        state[POSE_STEPS] = float(k + 1u);
+    }
+    state[ITERATION] = float(t + 1u);
+}

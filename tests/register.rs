@@ -1,0 +1,168 @@
+//! The registration loop on the device: on a small case with a known answer, the latent
+//! code and the pose converge to it (the template: an SGD loop that never leaves the
+//! device, asserted where the parameters end up).
+
+mod common;
+
+use glam::DVec3;
+use vkdr::cpd::CpdParams;
+use vkdr::dataset::{instance, Rng};
+use vkdr::raster::{Outputs, Rasterizer, View};
+use vkdr::register::{RegisterParams, Registrar};
+use vkdr::shape::ShapeSpace;
+use vkdr::{Camera, Mesh, Pose};
+
+fn space(ctx: &vkdr::gpu::Context) -> ShapeSpace {
+    let mut rng = Rng::new(11);
+    let canonical = instance("bottle", &mut rng).unwrap();
+    let train: Vec<(String, Vec<DVec3>)> = (0..6)
+        .map(|i| {
+            let m = instance("bottle", &mut rng).unwrap();
+            (
+                format!("b{i}"),
+                m.positions()
+                    .iter()
+                    .map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+                    .collect(),
+            )
+        })
+        .collect();
+    ShapeSpace::build(
+        ctx,
+        "bottle",
+        &canonical,
+        &train,
+        3,
+        &CpdParams {
+            max_iterations: 60,
+            ..Default::default()
+        },
+        |_, _, _| {},
+    )
+    .unwrap()
+}
+
+/// The mask of `vertices` (the canonical's topology) rendered through `view`.
+fn observe(
+    ctx: &vkdr::gpu::Context,
+    space: &ShapeSpace,
+    vertices: &[DVec3],
+    view: View,
+) -> Vec<f32> {
+    let positions = vertices
+        .iter()
+        .map(|p| [p.x as f32, p.y as f32, p.z as f32])
+        .collect();
+    let mesh = Mesh::new(positions, space.canonical.triangles().to_vec()).unwrap();
+    let g = Rasterizer::new(ctx)
+        .unwrap()
+        .render(ctx, &mesh, &[view], Outputs::Ids)
+        .unwrap();
+    g.ids
+        .iter()
+        .map(|&id| if id > 0 { 1.0 } else { 0.0 })
+        .collect()
+}
+
+fn camera() -> Camera {
+    Camera::new(260.0, 260.0, 64.0, 64.0, 128, 128).unwrap()
+}
+
+#[test]
+fn latent_code_converges_to_the_known_answer() {
+    let ctx = common::context();
+    let space = space(&ctx);
+    let truth: Vec<f64> = space.training_codes[2].clone();
+    let pose = Pose::new([0.0, 0.0, 0.6], [2.9, 0.3, 0.1]).unwrap();
+    let view = View {
+        camera: camera(),
+        pose,
+    };
+    let observed = observe(&ctx, &space, &space.vertices(&truth).unwrap(), view);
+    let registrar = Registrar::new(&ctx).unwrap();
+    let params = RegisterParams {
+        iterations: 60,
+        check_every: 60,
+        ..Default::default()
+    };
+    let result = registrar
+        .register(&ctx, &space, &observed, view, &params, |_, _| {})
+        .unwrap();
+    common::assert_no_validation_errors(&ctx);
+    let start = truth.iter().map(|t| t * t).sum::<f64>().sqrt();
+    let error = result
+        .code
+        .iter()
+        .zip(&truth)
+        .map(|(a, b)| (a - b).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    eprintln!(
+        "code {:?} truth {truth:?}; losses {:?}",
+        result.code, result.losses
+    );
+    assert!(
+        result.losses.last().unwrap() < &(0.2 * result.losses[0]),
+        "loss {:?}",
+        result.losses
+    );
+    assert!(
+        error < 0.25 * start,
+        "latent error {error} from a start of {start}"
+    );
+    let moved = (result.pose.translation - pose.translation).length()
+        + (result.pose.rotation - pose.rotation).length();
+    assert!(
+        moved < 1e-6,
+        "the pose stays fixed unless asked for: {:?}",
+        result.pose
+    );
+}
+
+#[test]
+fn pose_and_shape_converge_jointly() {
+    let ctx = common::context();
+    let space = space(&ctx);
+    let truth: Vec<f64> = space.training_codes[4].clone();
+    let pose = Pose::new([0.0, 0.0, 0.6], [2.9, 0.3, 0.1]).unwrap();
+    let observed = observe(
+        &ctx,
+        &space,
+        &space.vertices(&truth).unwrap(),
+        View {
+            camera: camera(),
+            pose,
+        },
+    );
+    let start = Pose::new([0.012, -0.01, 0.6], [2.95, 0.25, 0.12]).unwrap();
+    let registrar = Registrar::new(&ctx).unwrap();
+    let params = RegisterParams {
+        iterations: 90,
+        pose_every: 3,
+        check_every: 90,
+        loss: vkdr::loss::Loss::Distance,
+        ..Default::default()
+    };
+    let result = registrar
+        .register(
+            &ctx,
+            &space,
+            &observed,
+            View {
+                camera: camera(),
+                pose: start,
+            },
+            &params,
+            |_, _| {},
+        )
+        .unwrap();
+    common::assert_no_validation_errors(&ctx);
+    let before = (start.translation - pose.translation).length();
+    let after = (result.pose.translation - pose.translation).length();
+    eprintln!(
+        "translation error {before} -> {after}; losses {:?}",
+        result.losses
+    );
+    assert!(after < 0.3 * before, "translation {before} -> {after}");
+    assert_eq!(result.pose.translation.z as f32, 0.6, "z stays fixed");
+}
