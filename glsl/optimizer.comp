@@ -40,6 +40,7 @@ uint velocity_at() { return LATENT + pc.dims; }
 uint second_moment_at() { return LATENT + 2u * pc.dims; }
 uint pose_velocity_at() { return LATENT + 3u * pc.dims; }
 uint losses_at() { return LATENT + 3u * pc.dims + 6u; }
+uint codes_at() { return losses_at() + pc.max_iterations; }  // [iteration][dims], after the step
 
 mat3 rodrigues(vec3 w) {
     float angle = length(w);
@@ -73,6 +74,7 @@ void main() {
             step = pc.latent_step * decay * (m1 / bias1) / (sqrt(m2 / bias2) + 1e-12);
         }
         state[LATENT + j] -= step;
+        if (t < pc.max_iterations) state[codes_at() + t * pc.dims + j] = state[LATENT + j];
     }
 
     // Pose, once every pc.pose_every iterations.

@@ -9,6 +9,7 @@ pub mod cpd;
 pub mod dataset;
 pub mod diff;
 pub mod error;
+pub mod eval;
 pub mod gpu;
 pub mod io;
 pub mod loss;

@@ -97,6 +97,9 @@ impl State {
     fn losses(dims: usize) -> usize {
         Self::LATENT + 3 * dims + 6
     }
+    fn codes(dims: usize, iterations: usize) -> usize {
+        Self::losses(dims) + iterations
+    }
 }
 
 /// The registration pipelines (besides the differentiable renderer's).
@@ -116,6 +119,8 @@ pub struct Registration {
     pub vertices: Vec<DVec3>,
     /// Loss before each iteration.
     pub losses: Vec<f64>,
+    /// Latent code after each iteration (shape space units).
+    pub codes: Vec<Vec<f64>>,
     pub iterations: usize,
     pub milliseconds: f64,
 }
@@ -200,7 +205,7 @@ impl Registrar {
             .collect();
         let base = Buffer::from_slice(ctx, "canonical + offset", &base)?;
         let basis = Buffer::from_slice(ctx, "scaled deformation basis", &basis)?;
-        let state_len = State::losses(k) + params.iterations;
+        let state_len = State::codes(k, params.iterations) + params.iterations * k;
         let state = Buffer::from_slice(ctx, "optimizer state", &vec![0f32; state_len])?;
         let grad_latent = Buffer::from_slice(ctx, "latent gradient", &vec![0f32; k.max(1)])?;
 
@@ -302,13 +307,21 @@ impl Registrar {
             previous_best = previous_best.min(best);
         }
 
-        let values = state.read_range::<f32>(0, State::losses(k) + done)?;
+        let values = state.read_range::<f32>(0, state_len)?;
         let code: Vec<f64> = (0..k)
             .map(|j| values[State::LATENT + j] as f64 * stds[j])
             .collect();
-        let losses = values[State::losses(k)..]
+        let losses = values[State::losses(k)..State::losses(k) + done]
             .iter()
             .map(|&l| l as f64)
+            .collect();
+        let at = State::codes(k, params.iterations);
+        let codes = (0..done)
+            .map(|t| {
+                (0..k)
+                    .map(|j| values[at + t * k + j] as f64 * stds[j])
+                    .collect()
+            })
             .collect();
         let pose = read_pose(scene.views())?;
         Ok(Registration {
@@ -316,6 +329,7 @@ impl Registrar {
             code,
             pose,
             losses,
+            codes,
             iterations: done,
             milliseconds: started.elapsed().as_secs_f64() * 1e3,
         })

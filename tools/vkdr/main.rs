@@ -2,6 +2,7 @@
 
 mod bench;
 mod cpd_cmd;
+mod eval_cmd;
 mod grad;
 mod pictures;
 mod shape_cmd;
@@ -108,7 +109,25 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
-    /// The quick start: generate a mesh, render it from a few views, write the pictures.
+    /// Register a shape space to an observed mask (render-and-compare on the device).
+    Register(RegisterArgs),
+    /// The paper's Table 1 on a dataset: oracle, known pose and pose noise per test instance.
+    Eval {
+        /// A dataset in the layout of `vkdr gen-dataset`.
+        #[arg(long)]
+        dataset: PathBuf,
+        #[arg(long, default_value_t = 10)]
+        trials: usize,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Only these categories (comma-separated).
+        #[arg(long)]
+        categories: Option<String>,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// The quick start: generate a dataset, build a shape space, register a held-out
+    /// instance from a rendered mask with pose noise, print its Table-1 row, write pictures.
     Demo {
         /// Where to write the results.
         #[arg(long, default_value = "vkdr-demo")]
@@ -136,6 +155,42 @@ struct RenderArgs {
     #[arg(long)]
     raw: bool,
     /// Output directory.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+#[derive(clap::Args)]
+struct RegisterArgs {
+    /// Shape space (.npz from `vkdr shape-space`).
+    #[arg(long)]
+    space: PathBuf,
+    /// Observed mask PNG (nonzero = object), of exactly --size.
+    #[arg(long, required_unless_present = "observed_mesh")]
+    observed: Option<PathBuf>,
+    /// A test mesh to render as the observation (same camera, at the true pose --true-pose
+    /// or, without it, at --pose).
+    #[arg(long)]
+    observed_mesh: Option<PathBuf>,
+    #[arg(long, allow_hyphen_values = true)]
+    true_pose: Option<String>,
+    #[arg(long)]
+    intrinsics: String,
+    #[arg(long)]
+    size: String,
+    /// Initial object-to-camera pose tx,ty,tz,rx,ry,rz.
+    #[arg(long, allow_hyphen_values = true)]
+    pose: String,
+    /// Optimise the pose too (once per three shape updates; z stays fixed).
+    #[arg(long)]
+    optimize_pose: bool,
+    #[arg(long, default_value_t = 30)]
+    iterations: usize,
+    /// mse | iou | distance
+    #[arg(long, default_value = "mse")]
+    loss: String,
+    /// Adam instead of SGD with momentum.
+    #[arg(long)]
+    adam: bool,
     #[arg(long)]
     out: PathBuf,
 }
@@ -187,6 +242,14 @@ fn main() {
             train,
             test,
         } => gen_dataset(&out, seed, train, test),
+        Command::Register(args) => register(&args),
+        Command::Eval {
+            dataset,
+            trials,
+            seed,
+            categories,
+            out,
+        } => eval(&dataset, trials, seed, categories.as_deref(), &out),
         Command::ShapeSpace {
             category_dir,
             canonical,
@@ -446,6 +509,82 @@ fn write_views(
     Ok(written)
 }
 
+fn register(args: &RegisterArgs) -> Result<()> {
+    let space = vkdr::shape::ShapeSpace::load(&args.space)?;
+    let view = parse_view(
+        &args.intrinsics,
+        &args.size,
+        &args.pose,
+        Camera::DEFAULT_NEAR,
+    )?;
+    let ctx = Context::new()?;
+    let (w, h) = (view.camera.width, view.camera.height);
+    let observed = match (&args.observed, &args.observed_mesh) {
+        (Some(mask), _) => vkdr::loss::load_mask(mask, w, h)?,
+        (None, Some(mesh)) => {
+            let truth = match &args.true_pose {
+                Some(p) => parse_view(&args.intrinsics, &args.size, p, Camera::DEFAULT_NEAR)?,
+                None => view,
+            };
+            let registrar = vkdr::register::Registrar::new(&ctx)?;
+            vkdr::eval::render_mask(&ctx, &registrar, &Mesh::load_obj(mesh)?, truth)?
+        }
+        (None, None) => anyhow::bail!("give --observed MASK.png or --observed-mesh TEST.obj"),
+    };
+    let params = vkdr::register::RegisterParams {
+        iterations: args.iterations,
+        pose_every: if args.optimize_pose { 3 } else { 0 },
+        loss: args.loss.parse()?,
+        adam: args.adam,
+        ..Default::default()
+    };
+    let result = eval_cmd::register(&ctx, &space, &observed, view, &params, &args.out)?;
+    println!(
+        "{} iterations in {:.1} ms ({:.2} ms per iteration); loss {:.5} -> {:.5}; code {:?}",
+        result.iterations,
+        result.milliseconds,
+        result.milliseconds / result.iterations as f64,
+        result.losses.first().copied().unwrap_or(f64::NAN),
+        result.losses.last().copied().unwrap_or(f64::NAN),
+        result
+            .code
+            .iter()
+            .map(|c| (c * 1e4).round() / 1e4)
+            .collect::<Vec<_>>()
+    );
+    println!(
+        "wrote {0}/deformed.obj, pose.json, code.npy, log.json, overlay_start.png, overlay_end.png",
+        args.out.display()
+    );
+    Ok(())
+}
+
+fn eval(
+    dataset: &Path,
+    trials: usize,
+    seed: u64,
+    categories: Option<&str>,
+    out: &Path,
+) -> Result<()> {
+    let ctx = Context::new()?;
+    let device = format!("{} ({})", ctx.info().name, ctx.info().driver_info);
+    let settings = vkdr::eval::EvalSettings {
+        trials: trials.max(2),
+        seed,
+        ..Default::default()
+    };
+    let only: Option<Vec<String>> =
+        categories.map(|c| c.split(',').map(|s| s.trim().to_string()).collect());
+    let rows = eval_cmd::eval(&ctx, dataset, &settings, only.as_deref())?;
+    eval_cmd::write_reports(out, &rows, &settings, &device)?;
+    print!("{}", std::fs::read_to_string(out.join("table.md"))?);
+    println!(
+        "wrote {0}/table.md, table.csv, table.json, speed_vs_error.png",
+        out.display()
+    );
+    Ok(())
+}
+
 fn gen_dataset(out: &Path, seed: u64, train: usize, test: usize) -> Result<()> {
     let dirs = vkdr::dataset::generate(out, seed, train, test, |category, done, total| {
         eprint!("\r  {category:<14} {done:>3}/{total}");
@@ -465,37 +604,112 @@ fn demo(out: &Path) -> Result<()> {
     let ctx = Context::new()?;
     println!("device: {} ({})", ctx.info().name, ctx.info().driver_info);
 
-    let mesh = Mesh::bottle(48);
-    let mesh_path = out.join("bottle.obj");
-    mesh.save_obj(&mesh_path)?;
+    // 1. A generated dataset.
+    let dataset = out.join("dataset");
+    vkdr::dataset::generate(&dataset, 0, 10, 2, |_, _, _| {})?;
     println!(
-        "generated a bottle: {} vertices, {} triangles -> {}",
-        mesh.vertex_count(),
-        mesh.triangle_count(),
-        mesh_path.display()
+        "1. generated {} (bottle, mug, spray_bottle, drill: 10 training and 2 test meshes each)",
+        dataset.display()
     );
 
-    let camera = Camera::new(600.0, 600.0, 320.0, 240.0, 640, 480)?;
-    // Object +y (the bottle's up) is rotated to image-up (camera -y).
-    let views: Vec<View> = [[3.14159, 0.0, 0.0], [2.7, 0.0, 0.6], [2.2, 0.9, -0.4]]
-        .iter()
-        .map(|&rotation| View {
-            camera,
-            pose: Pose {
-                translation: [0.0, 0.0, 0.6].into(),
-                rotation: rotation.into(),
-            },
-        })
-        .collect();
-    let rasterizer = Rasterizer::new(&ctx)?;
-    let written = write_views(&ctx, &rasterizer, &mesh, &views, out, true)?;
+    // 2. The bottle's shape space from its training instances.
+    let category = dataset.join("bottle");
+    let space_path = out.join("bottle_space.npz");
+    shape_cmd::run(
+        &category,
+        None,
+        5,
+        &vkdr::cpd::CpdParams::default(),
+        &space_path,
+    )?;
+    let space = vkdr::shape::ShapeSpace::load(&space_path)?;
     println!(
-        "rendered {} views of 640x480 in one submission; wrote:",
-        views.len()
+        "2. built the bottle shape space ({} dimensions) -> {}",
+        space.dims(),
+        space_path.display()
     );
-    for path in &written {
-        println!("  {path}");
-    }
+
+    // 3. Register a held-out bottle from rendered masks, with the pose known and with
+    //    pose noise, over a few seeded trials: its Table-1 row.
+    let test_path = shape_cmd::obj_files(&category.join("test"))?
+        .into_iter()
+        .next()
+        .context("no test bottle")?;
+    let test = Mesh::load_obj(&test_path)?;
+    let settings = vkdr::eval::EvalSettings {
+        trials: 3,
+        ..Default::default()
+    };
+    let registrar = vkdr::register::Registrar::new(&ctx)?;
+    let row = vkdr::eval::evaluate_instance(
+        &ctx,
+        &registrar,
+        &space,
+        "bottle",
+        "test_00",
+        &test,
+        &settings,
+        |_, _| {},
+    )?;
+    println!(
+        "3. {}: oracle {:.2} mm | known pose {:.2} +- {:.2} mm ({:.2}x oracle) | pose noise {:.2} +- {:.2} mm ({:.2}x) | {:.0} iterations, {:.0} ms ({:.1} ms per iteration)",
+        test_path.display(),
+        1e3 * row.oracle,
+        1e3 * row.known_pose.mean,
+        1e3 * row.known_pose.std,
+        row.known_pose.mean / row.oracle,
+        1e3 * row.pose_noise.mean,
+        1e3 * row.pose_noise.std,
+        row.pose_noise.mean / row.oracle,
+        row.iterations,
+        row.ms,
+        row.ms_per_iteration
+    );
+
+    // 4. One registration with pose noise, with pictures.
+    let truth = vkdr::eval::view_pose(0.8, 0.5, settings.distance);
+    let view = View {
+        camera: settings.camera,
+        pose: truth,
+    };
+    let mask = vkdr::eval::render_mask(&ctx, &registrar, &test, view)?;
+    let start = Pose {
+        translation: truth.translation + glam::DVec3::new(0.03, -0.02, 0.0),
+        rotation: truth.rotation + glam::DVec3::new(0.1, -0.15, 0.05),
+    };
+    let register_out = out.join("register");
+    let result = eval_cmd::register(
+        &ctx,
+        &space,
+        &mask,
+        View {
+            camera: settings.camera,
+            pose: start,
+        },
+        &settings.pose_noise,
+        &register_out,
+    )?;
+    println!(
+        "4. registered with pose noise in {:.0} ms: error {:.2} mm; pictures {2}/overlay_start.png, {2}/overlay_end.png (observed blue, rendered red)",
+        result.milliseconds,
+        1e3 * vkdr::eval::mean_nearest(&vkdr::eval::points(&test), &result.vertices),
+        register_out.display()
+    );
+    let render_out = out.join("render");
+    std::fs::create_dir_all(&render_out)?;
+    let deformed = Mesh::load_obj(register_out.join("deformed.obj"))?;
+    let written = write_views(
+        &ctx,
+        &Rasterizer::new(&ctx)?,
+        &deformed,
+        &[View {
+            camera: settings.camera,
+            pose: result.pose,
+        }],
+        &render_out,
+        true,
+    )?;
+    println!("5. G-buffer of the registered mesh: {}", written.join(", "));
     println!("done in {:.1} s", started.elapsed().as_secs_f64());
     Ok(())
 }

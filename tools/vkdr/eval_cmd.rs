@@ -1,0 +1,284 @@
+//! `vkdr register`, `vkdr eval` and the pictures and reports they write.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context as _, Result};
+use glam::DVec3;
+use image::{Rgb, RgbImage};
+
+use vkdr::eval::{self, EvalSettings, Row};
+use vkdr::gpu::Context;
+use vkdr::io::{write_atomically, write_npy, write_png};
+use vkdr::plot::{Plot, PALETTE};
+use vkdr::raster::View;
+use vkdr::register::{RegisterParams, Registrar, Registration};
+use vkdr::shape::ShapeSpace;
+use vkdr::Mesh;
+
+use crate::shape_cmd::obj_files;
+
+/// Observed mask in blue, rendered silhouette in red (overlap magenta).
+pub fn overlay(observed: &[f32], rendered: &[f32], width: u32, height: u32) -> RgbImage {
+    RgbImage::from_fn(width, height, |x, y| {
+        let k = (y * width + x) as usize;
+        Rgb([
+            (30.0 + 225.0 * rendered[k]) as u8,
+            30,
+            (30.0 + 225.0 * observed[k]) as u8,
+        ])
+    })
+}
+
+fn mesh_with(space: &ShapeSpace, vertices: &[DVec3]) -> Result<Mesh> {
+    let positions = vertices
+        .iter()
+        .map(|p| [p.x as f32, p.y as f32, p.z as f32])
+        .collect();
+    Ok(Mesh::new(positions, space.canonical.triangles().to_vec())?)
+}
+
+/// Runs one registration and writes its outputs.
+pub fn register(
+    ctx: &Context,
+    space: &ShapeSpace,
+    observed: &[f32],
+    view: View,
+    params: &RegisterParams,
+    out: &Path,
+) -> Result<Registration> {
+    let registrar = Registrar::new(ctx)?;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let (w, h) = (view.camera.width, view.camera.height);
+    let start = eval::render_mask(
+        ctx,
+        &registrar,
+        &mesh_with(space, &space.vertices(&vec![0.0; space.dims()])?)?,
+        view,
+    )?;
+    write_png(
+        &out.join("overlay_start.png"),
+        &image::DynamicImage::ImageRgb8(overlay(observed, &start, w, h)),
+    )?;
+    let total = params.iterations;
+    let result = registrar.register(ctx, space, observed, view, params, |done, loss| {
+        let filled = done * 30 / total.max(1);
+        eprint!(
+            "\r  register [{}{}] {done}/{total} loss {loss:.5}",
+            "#".repeat(filled),
+            ".".repeat(30 - filled)
+        );
+    })?;
+    eprintln!();
+    let mesh = mesh_with(space, &result.vertices)?;
+    mesh.save_obj(out.join("deformed.obj"))?;
+    let end = eval::render_mask(
+        ctx,
+        &registrar,
+        &mesh,
+        View {
+            camera: view.camera,
+            pose: result.pose,
+        },
+    )?;
+    write_png(
+        &out.join("overlay_end.png"),
+        &image::DynamicImage::ImageRgb8(overlay(observed, &end, w, h)),
+    )?;
+    write_npy(
+        &out.join("code.npy"),
+        &ndarray::Array1::from_vec(result.code.clone()),
+    )?;
+    let p = result.pose;
+    let pose = format!(
+        "{{\"translation\": [{}, {}, {}], \"rotation\": [{}, {}, {}]}}\n",
+        p.translation.x, p.translation.y, p.translation.z, p.rotation.x, p.rotation.y, p.rotation.z
+    );
+    write_atomically(&out.join("pose.json"), pose.as_bytes())?;
+    let per = result.milliseconds / result.iterations as f64;
+    let log: Vec<String> = result
+        .losses
+        .iter()
+        .enumerate()
+        .map(|(i, l)| {
+            format!(
+                "  {{\"iteration\": {i}, \"loss\": {l:e}, \"ms\": {:.3}}}",
+                per * (i + 1) as f64
+            )
+        })
+        .collect();
+    write_atomically(
+        &out.join("log.json"),
+        format!("[\n{}\n]\n", log.join(",\n")).as_bytes(),
+    )?;
+    Ok(result)
+}
+
+fn category_dirs(dataset: &Path) -> Result<Vec<PathBuf>> {
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(dataset)
+        .with_context(|| format!("reading {}", dataset.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            p.join("train").is_dir() && p.join("test").is_dir() && p.join("canonical.obj").is_file()
+        })
+        .collect();
+    dirs.sort();
+    if dirs.is_empty() {
+        bail!(
+            "{} has no category folders (canonical.obj, train/, test/)",
+            dataset.display()
+        );
+    }
+    Ok(dirs)
+}
+
+/// Builds each category's shape space from train/ and evaluates every test instance.
+pub fn eval(
+    ctx: &Context,
+    dataset: &Path,
+    settings: &EvalSettings,
+    only: Option<&[String]>,
+) -> Result<Vec<Row>> {
+    let registrar = Registrar::new(ctx)?;
+    let mut rows = Vec::new();
+    for dir in category_dirs(dataset)? {
+        let category = dir
+            .file_name()
+            .unwrap_or_default()
+            .to_string_lossy()
+            .into_owned();
+        if only.is_some_and(|c| !c.contains(&category)) {
+            continue;
+        }
+        let canonical = Mesh::load_obj(dir.join("canonical.obj"))?;
+        let training: Vec<(String, Vec<DVec3>)> = obj_files(&dir.join("train"))?
+            .iter()
+            .map(|f| Ok((f.display().to_string(), eval::points(&Mesh::load_obj(f)?))))
+            .collect::<Result<_>>()?;
+        eprintln!(
+            "{category}: shape space from {} training instances",
+            training.len()
+        );
+        let space = ShapeSpace::build(
+            ctx,
+            &category,
+            &canonical,
+            &training,
+            settings.dims,
+            &settings.cpd,
+            |_, _, _| {},
+        )?;
+        for test in obj_files(&dir.join("test"))? {
+            let name = test
+                .file_stem()
+                .unwrap_or_default()
+                .to_string_lossy()
+                .into_owned();
+            let mesh = Mesh::load_obj(&test)?;
+            let row = eval::evaluate_instance(
+                ctx,
+                &registrar,
+                &space,
+                &category,
+                &name,
+                &mesh,
+                settings,
+                |done, total| {
+                    eprint!("\r  {name:<22} trial {done}/{total}");
+                },
+            )?;
+            eprintln!(
+                "\r  {name:<22} oracle {:.2} mm, known pose {:.2} mm ({:.2}x), pose noise {:.2} mm ({:.2}x), {:.0} ms",
+                1e3 * row.oracle,
+                1e3 * row.known_pose.mean,
+                row.known_pose.mean / row.oracle,
+                1e3 * row.pose_noise.mean,
+                row.pose_noise.mean / row.oracle,
+                row.ms
+            );
+            rows.push(row);
+        }
+    }
+    Ok(rows)
+}
+
+pub fn write_reports(
+    out: &Path,
+    rows: &[Row],
+    settings: &EvalSettings,
+    device: &str,
+) -> Result<()> {
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let c = &settings.camera;
+    let mut md = format!(
+        "# Registration error (Table 1)\n\nDevice: {device}. Camera: fx {} fy {} cx {} cy {}, {}x{} px; object at {} m; views from the upper hemisphere \
+         (elevation {:.0}-{:.0} deg) at random azimuth; {} trials per instance (seed {}). Pose noise: uniform +-{} cm in x and y, +-{:.0} deg about each axis. \
+         Error: mean distance (mm) from each vertex of the test instance to the nearest vertex of the deformed canonical mesh; \
+         ratio = error / oracle error; chamfer = symmetric chamfer distance (mm).\n\n\
+         | category | instance | oracle | known pose | ratio | pose noise | ratio | worst noise trial | chamfer oracle / known / noise | iterations | ms |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
+        c.fx, c.fy, c.cx, c.cy, c.width, c.height, settings.distance,
+        settings.elevation.0.to_degrees(), settings.elevation.1.to_degrees(), settings.trials, settings.seed,
+        100.0 * settings.translation_noise, settings.rotation_noise.to_degrees()
+    );
+    let mut csv = String::from("category,instance,oracle,known_pose_mean,known_pose_std,pose_noise_mean,pose_noise_std,iterations,ms,oracle_chamfer,known_pose_chamfer,pose_noise_chamfer\n");
+    let mut json = Vec::new();
+    for r in rows {
+        md.push_str(&format!(
+            "| {} | {} | {:.2} | {:.2} +- {:.2} | {:.2} | {:.2} +- {:.2} | {:.2} | {:.2} | {:.2} / {:.2} / {:.2} | {:.1} | {:.0} |\n",
+            r.category, r.instance, 1e3 * r.oracle, 1e3 * r.known_pose.mean, 1e3 * r.known_pose.std, r.known_pose.mean / r.oracle,
+            1e3 * r.pose_noise.mean, 1e3 * r.pose_noise.std, r.pose_noise.mean / r.oracle, 1e3 * r.pose_noise_worst,
+            1e3 * r.oracle_chamfer, 1e3 * r.known_pose_chamfer.mean, 1e3 * r.pose_noise_chamfer.mean, r.iterations, r.ms
+        ));
+        csv.push_str(&format!(
+            "{},{},{:e},{:e},{:e},{:e},{:e},{},{:.3},{:e},{:e},{:e}\n",
+            r.category,
+            r.instance,
+            r.oracle,
+            r.known_pose.mean,
+            r.known_pose.std,
+            r.pose_noise.mean,
+            r.pose_noise.std,
+            r.iterations,
+            r.ms,
+            r.oracle_chamfer,
+            r.known_pose_chamfer.mean,
+            r.pose_noise_chamfer.mean
+        ));
+        json.push(format!(
+            "  {{\"category\": {:?}, \"instance\": {:?}, \"oracle\": {:e}, \"known_pose\": {{\"mean\": {:e}, \"std\": {:e}}}, \"pose_noise\": {{\"mean\": {:e}, \"std\": {:e}}}, \"iterations\": {}, \"ms\": {:.3}, \"chamfer\": {{\"oracle\": {:e}, \"known_pose\": {:e}, \"pose_noise\": {:e}}}}}",
+            r.category, r.instance, r.oracle, r.known_pose.mean, r.known_pose.std, r.pose_noise.mean, r.pose_noise.std, r.iterations, r.ms,
+            r.oracle_chamfer, r.known_pose_chamfer.mean, r.pose_noise_chamfer.mean
+        ));
+    }
+    write_atomically(&out.join("table.md"), md.as_bytes())?;
+    write_atomically(&out.join("table.csv"), csv.as_bytes())?;
+    write_atomically(
+        &out.join("table.json"),
+        format!("[\n{}\n]\n", json.join(",\n")).as_bytes(),
+    )?;
+
+    // Speed against error: mean error relative to the oracle after each iteration.
+    let curve = |pick: &dyn Fn(&Row) -> &Vec<f64>| -> Vec<(f64, f64)> {
+        let n = rows.iter().map(|r| pick(r).len()).min().unwrap_or(0);
+        let ms = rows.iter().map(|r| r.ms_per_iteration).sum::<f64>() / rows.len().max(1) as f64;
+        (0..n)
+            .map(|t| {
+                (
+                    (t + 1) as f64 * ms,
+                    rows.iter().map(|r| pick(r)[t] / r.oracle).sum::<f64>() / rows.len() as f64,
+                )
+            })
+            .collect()
+    };
+    let plot = Plot::new(
+        "speed against error (all test instances)",
+        "cumulative time (ms)",
+        "error / oracle error",
+    )
+    .series("known pose", PALETTE[0], curve(&|r| &r.curve_known))
+    .series("pose noise", PALETTE[1], curve(&|r| &r.curve_noise));
+    write_png(
+        &out.join("speed_vs_error.png"),
+        &image::DynamicImage::ImageRgb8(plot.render()),
+    )?;
+    Ok(())
+}
