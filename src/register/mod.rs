@@ -3,7 +3,8 @@
 //! iteration — deform (C + d0 + B s), rasterize, antialias, loss, backward, reduce to
 //! dL/ds and dL/dpose, optimiser step — is recorded once and replayed; a chunk of
 //! iterations goes in one submission, and the host reads the loss history between chunks
-//! to stop on a plateau.
+//! to stop on a plateau. Codes are kept within 3 training standard deviations
+//! (projected steps).
 
 use std::time::Instant;
 
@@ -35,6 +36,9 @@ pub struct RegisterParams {
     pub latent_step: f64,
     /// Update the pose once every this many iterations (0: the pose stays fixed).
     pub pose_every: usize,
+    /// With pose optimisation: iterations at the start that move the pose alone (the
+    /// shape would otherwise bend to explain a misaligned silhouette).
+    pub pose_first: usize,
     /// Let the z translation move too (ill-posed with shape from one view).
     pub optimize_z: bool,
     /// First translation and rotation steps of the pose (metres, radians).
@@ -56,6 +60,7 @@ impl Default for RegisterParams {
             decay: 0.95,
             latent_step: 0.5,
             pose_every: 0,
+            pose_first: 0,
             optimize_z: false,
             translation_step: 0.004,
             rotation_step: 0.02,
@@ -88,6 +93,7 @@ struct OptimizerConstants {
     translation_step: f32,
     rotation_step: f32,
     max_iterations: u32,
+    shape_after: u32,
 }
 
 /// Offsets of the optimiser state (mirrors `glsl/optimizer.comp`).
@@ -138,7 +144,7 @@ impl Registrar {
                 &[b; 3],
                 8,
             )?,
-            optimizer: ComputePipeline::new(ctx, "optimizer", &spirv(OPTIMIZER)?, &[b; 5], 40)?,
+            optimizer: ComputePipeline::new(ctx, "optimizer", &spirv(OPTIMIZER)?, &[b; 5], 44)?,
         })
     }
 
@@ -225,6 +231,11 @@ impl Registrar {
             translation_step: params.translation_step as f32,
             rotation_step: params.rotation_step as f32,
             max_iterations: params.iterations as u32,
+            shape_after: if params.pose_every > 0 {
+                params.pose_first.min(params.iterations) as u32
+            } else {
+                0
+            },
         };
         let record_iteration = |rec: &mut Recorder| -> Result<()> {
             rec.bind_compute(&self.deform);

@@ -183,7 +183,7 @@ pub fn eval(
                 &mesh,
                 settings,
                 |done, total| {
-                    eprint!("\r  {name:<22} trial {done}/{total}");
+                    eprint!("\r  {name:<22} trial {done}/{total}  ");
                 },
             )?;
             eprintln!(

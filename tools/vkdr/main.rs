@@ -123,6 +123,20 @@ enum Command {
         /// Only these categories (comma-separated).
         #[arg(long)]
         categories: Option<String>,
+        /// Iterations with pose noise (the pose is updated once per three).
+        #[arg(long, default_value_t = 30)]
+        noise_iterations: usize,
+        /// First pose steps with pose noise: translation (m) and rotation (rad).
+        #[arg(long, default_value_t = 0.01)]
+        translation_step: f64,
+        #[arg(long, default_value_t = 0.05)]
+        rotation_step: f64,
+        /// With pose noise: update the pose once every this many iterations...
+        #[arg(long, default_value_t = 1)]
+        pose_every: usize,
+        /// ...after this many iterations that move the pose alone.
+        #[arg(long, default_value_t = 10)]
+        pose_first: usize,
         #[arg(long)]
         out: PathBuf,
     },
@@ -248,8 +262,25 @@ fn main() {
             trials,
             seed,
             categories,
+            noise_iterations,
+            translation_step,
+            rotation_step,
+            pose_every,
+            pose_first,
             out,
-        } => eval(&dataset, trials, seed, categories.as_deref(), &out),
+        } => {
+            let mut settings = vkdr::eval::EvalSettings {
+                trials: trials.max(2),
+                seed,
+                ..Default::default()
+            };
+            settings.pose_noise.iterations = noise_iterations;
+            settings.pose_noise.translation_step = translation_step;
+            settings.pose_noise.rotation_step = rotation_step;
+            settings.pose_noise.pose_every = pose_every;
+            settings.pose_noise.pose_first = pose_first;
+            eval(&dataset, settings, categories.as_deref(), &out)
+        }
         Command::ShapeSpace {
             category_dir,
             canonical,
@@ -561,18 +592,12 @@ fn register(args: &RegisterArgs) -> Result<()> {
 
 fn eval(
     dataset: &Path,
-    trials: usize,
-    seed: u64,
+    settings: vkdr::eval::EvalSettings,
     categories: Option<&str>,
     out: &Path,
 ) -> Result<()> {
     let ctx = Context::new()?;
     let device = format!("{} ({})", ctx.info().name, ctx.info().driver_info);
-    let settings = vkdr::eval::EvalSettings {
-        trials: trials.max(2),
-        seed,
-        ..Default::default()
-    };
     let only: Option<Vec<String>> =
         categories.map(|c| c.split(',').map(|s| s.trim().to_string()).collect());
     let rows = eval_cmd::eval(&ctx, dataset, &settings, only.as_deref())?;
