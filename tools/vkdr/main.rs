@@ -135,7 +135,7 @@ enum Command {
         #[arg(long, default_value_t = 1)]
         pose_every: usize,
         /// ...after this many iterations that move the pose alone.
-        #[arg(long, default_value_t = 10)]
+        #[arg(long, default_value_t = 15)]
         pose_first: usize,
         #[arg(long)]
         out: PathBuf,
