@@ -6,16 +6,10 @@ use anyhow::{bail, Context as _, Result};
 use glam::DVec3;
 
 use vkdr::cpd::CpdParams;
+use vkdr::eval::{mean_nearest, points};
 use vkdr::gpu::Context;
 use vkdr::shape::ShapeSpace;
 use vkdr::Mesh;
-
-fn points(mesh: &Mesh) -> Vec<DVec3> {
-    mesh.positions()
-        .iter()
-        .map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))
-        .collect()
-}
 
 /// The `.obj` files of a directory, sorted by name.
 pub fn obj_files(dir: &Path) -> Result<Vec<PathBuf>> {
@@ -26,19 +20,6 @@ pub fn obj_files(dir: &Path) -> Result<Vec<PathBuf>> {
         .collect();
     files.sort();
     Ok(files)
-}
-
-/// Mean distance from each point of `a` to its nearest point of `b`.
-fn mean_nearest(a: &[DVec3], b: &[DVec3]) -> f64 {
-    a.iter()
-        .map(|p| {
-            b.iter()
-                .map(|q| (*p - *q).length_squared())
-                .fold(f64::MAX, f64::min)
-                .sqrt()
-        })
-        .sum::<f64>()
-        / a.len() as f64
 }
 
 pub fn run(
