@@ -41,13 +41,6 @@ pub fn chamfer(a: &[DVec3], b: &[DVec3]) -> f64 {
     0.5 * (mean_nearest(a, b) + mean_nearest(b, a))
 }
 
-pub fn points(mesh: &Mesh) -> Vec<DVec3> {
-    mesh.positions()
-        .iter()
-        .map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))
-        .collect()
-}
-
 /// The evaluation's camera and trial settings.
 #[derive(Clone, Debug)]
 pub struct EvalSettings {
@@ -175,7 +168,7 @@ pub fn evaluate_instance(
     settings: &EvalSettings,
     mut progress: impl FnMut(usize, usize),
 ) -> Result<Row> {
-    let truth = points(test);
+    let truth = test.points();
     let oracle_code = space.oracle_code(ctx, &truth, &settings.cpd)?;
     let oracle_vertices = space.vertices(&oracle_code)?;
     let mut rng = Rng::new(settings.seed ^ hash(name));

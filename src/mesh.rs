@@ -7,6 +7,8 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
+use glam::DVec3;
+
 use crate::error::{Error, Result};
 
 /// A welded triangle mesh: shared vertices, one index per corner, counter-clockwise
@@ -55,6 +57,30 @@ impl Mesh {
 
     pub fn triangles(&self) -> &[[u32; 3]] {
         &self.triangles
+    }
+
+    /// The positions in float64 (for host-side geometry).
+    pub fn points(&self) -> Vec<DVec3> {
+        self.positions
+            .iter()
+            .map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+            .collect()
+    }
+
+    /// The same triangles over new vertex positions (one per vertex, checked).
+    pub fn with_points(&self, points: &[DVec3]) -> Result<Self> {
+        if points.len() != self.positions.len() {
+            return Err(Error::InvalidInput(format!(
+                "{} points for a mesh of {} vertices",
+                points.len(),
+                self.positions.len()
+            )));
+        }
+        let positions = points
+            .iter()
+            .map(|p| [p.x as f32, p.y as f32, p.z as f32])
+            .collect();
+        Self::new(positions, self.triangles.clone())
     }
 
     pub fn vertex_count(&self) -> usize {

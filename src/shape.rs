@@ -43,13 +43,6 @@ pub struct ShapeSpace {
     pub training_names: Vec<String>,
 }
 
-fn points_of(mesh: &Mesh) -> Vec<DVec3> {
-    mesh.positions()
-        .iter()
-        .map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))
-        .collect()
-}
-
 /// G applied to a flattened M x 3 field, with G in data units.
 fn kernel_apply(canonical: &[DVec3], beta: f64, field: &[f64]) -> Vec<f64> {
     let g = cpd::kernel_matrix(canonical, beta);
@@ -86,7 +79,7 @@ impl ShapeSpace {
                 CpdParams::DENSE_LIMIT
             )));
         }
-        let c = points_of(canonical);
+        let c = canonical.points();
         let pipelines = CpdPipelines::new(ctx)?;
         let mut ws = Vec::new();
         for (i, (name, points)) in training.iter().enumerate() {
@@ -174,7 +167,7 @@ impl ShapeSpace {
             .map(|w| basis.iter().map(|u| dot(u, w)).collect())
             .collect();
         let explained_variance = values[..k].iter().map(|v| v / total).collect();
-        let c = points_of(canonical);
+        let c = canonical.points();
         let offset = kernel_apply(&c, beta, &mean);
         let deformation_basis = basis.iter().map(|u| kernel_apply(&c, beta, u)).collect();
         Ok(Self {
@@ -211,7 +204,9 @@ impl ShapeSpace {
                 *f += sj * v;
             }
         }
-        Ok(points_of(&self.canonical)
+        Ok(self
+            .canonical
+            .points()
             .iter()
             .enumerate()
             .map(|(i, c)| *c + DVec3::new(field[3 * i], field[3 * i + 1], field[3 * i + 2]))
@@ -233,7 +228,7 @@ impl ShapeSpace {
         params: &CpdParams,
     ) -> Result<Vec<f64>> {
         let pipelines = CpdPipelines::new(ctx)?;
-        let c = points_of(&self.canonical);
+        let c = self.canonical.points();
         let result = cpd::register(ctx, &pipelines, &c, points, params, &mut |_, _| {})?;
         Ok(self.code_of_coefficients(
             &result
@@ -257,7 +252,9 @@ impl ShapeSpace {
         {
             let mut npz = ndarray_npy::NpzWriter::new(std::io::Cursor::new(&mut bytes));
             let npz_err = |e: ndarray_npy::WriteNpzError| Error::format(path, e.to_string());
-            let canonical: Vec<f64> = points_of(&self.canonical)
+            let canonical: Vec<f64> = self
+                .canonical
+                .points()
                 .iter()
                 .flat_map(|p| p.to_array())
                 .collect();

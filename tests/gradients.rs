@@ -122,12 +122,7 @@ fn check(case: &Case) -> (Report, Evaluation) {
             .zip(case.attributes.as_ref().map(|(_, c)| *c as usize)),
         loss: case.loss,
     };
-    let positions: Vec<DVec3> = case
-        .mesh
-        .positions()
-        .iter()
-        .map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))
-        .collect();
+    let positions: Vec<DVec3> = case.mesh.points();
     let poses: Vec<RigidPose> = case.views.iter().map(|v| rigid(&v.pose)).collect();
     let base = reference::evaluate(&problem, &positions, &poses);
 

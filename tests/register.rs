@@ -10,7 +10,7 @@ use vkdr::dataset::{instance, Rng};
 use vkdr::raster::{Outputs, Rasterizer, View};
 use vkdr::register::{RegisterParams, Registrar};
 use vkdr::shape::ShapeSpace;
-use vkdr::{Camera, Mesh, Pose};
+use vkdr::{Camera, Pose};
 
 fn space(ctx: &vkdr::gpu::Context) -> ShapeSpace {
     let mut rng = Rng::new(11);
@@ -18,13 +18,7 @@ fn space(ctx: &vkdr::gpu::Context) -> ShapeSpace {
     let train: Vec<(String, Vec<DVec3>)> = (0..6)
         .map(|i| {
             let m = instance("bottle", &mut rng).unwrap();
-            (
-                format!("b{i}"),
-                m.positions()
-                    .iter()
-                    .map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))
-                    .collect(),
-            )
+            (format!("b{i}"), m.points())
         })
         .collect();
     ShapeSpace::build(
@@ -49,11 +43,7 @@ fn observe(
     vertices: &[DVec3],
     view: View,
 ) -> Vec<f32> {
-    let positions = vertices
-        .iter()
-        .map(|p| [p.x as f32, p.y as f32, p.z as f32])
-        .collect();
-    let mesh = Mesh::new(positions, space.canonical.triangles().to_vec()).unwrap();
+    let mesh = space.canonical.with_points(vertices).unwrap();
     let g = Rasterizer::new(ctx)
         .unwrap()
         .render(ctx, &mesh, &[view], Outputs::Ids)

@@ -8,13 +8,6 @@ use vkdr::cpd::{self, CpdParams, CpdPipelines};
 use vkdr::dataset::{instance, Rng};
 use vkdr::shape::ShapeSpace;
 
-fn points(mesh: &vkdr::Mesh) -> Vec<DVec3> {
-    mesh.positions()
-        .iter()
-        .map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))
-        .collect()
-}
-
 fn small_space(
     ctx: &vkdr::gpu::Context,
     training: usize,
@@ -26,7 +19,7 @@ fn small_space(
         .map(|i| {
             (
                 format!("bottle_{i}"),
-                points(&instance("bottle", &mut rng).unwrap()),
+                instance("bottle", &mut rng).unwrap().points(),
             )
         })
         .collect();
@@ -65,7 +58,7 @@ fn oracle_of_a_training_instance_reproduces_its_cpd_result() {
         max_iterations: 60,
         ..CpdParams::default()
     };
-    let canonical = points(&space.canonical);
+    let canonical = space.canonical.points();
     let pipelines = CpdPipelines::new(&ctx).unwrap();
     for (i, (_, target)) in train.iter().enumerate() {
         let code = space.oracle_code(&ctx, target, &params).unwrap();

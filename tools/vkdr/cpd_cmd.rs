@@ -17,12 +17,7 @@ pub fn load_points(path: &Path) -> Result<Vec<DVec3>> {
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("npy"));
     if !is_npy {
-        let mesh = Mesh::load_obj(path)?;
-        return Ok(mesh
-            .positions()
-            .iter()
-            .map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))
-            .collect());
+        return Ok(Mesh::load_obj(path)?.points());
     }
     use ndarray_npy::ReadNpyExt;
     let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;

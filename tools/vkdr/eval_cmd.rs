@@ -29,14 +29,6 @@ pub fn overlay(observed: &[f32], rendered: &[f32], width: u32, height: u32) -> R
     })
 }
 
-fn mesh_with(space: &ShapeSpace, vertices: &[DVec3]) -> Result<Mesh> {
-    let positions = vertices
-        .iter()
-        .map(|p| [p.x as f32, p.y as f32, p.z as f32])
-        .collect();
-    Ok(Mesh::new(positions, space.canonical.triangles().to_vec())?)
-}
-
 /// Runs one registration and writes its outputs.
 pub fn register(
     ctx: &Context,
@@ -52,7 +44,9 @@ pub fn register(
     let start = eval::render_mask(
         ctx,
         &registrar,
-        &mesh_with(space, &space.vertices(&vec![0.0; space.dims()])?)?,
+        &space
+            .canonical
+            .with_points(&space.vertices(&vec![0.0; space.dims()])?)?,
         view,
     )?;
     write_png(
@@ -69,7 +63,7 @@ pub fn register(
         );
     })?;
     eprintln!();
-    let mesh = mesh_with(space, &result.vertices)?;
+    let mesh = space.canonical.with_points(&result.vertices)?;
     mesh.save_obj(out.join("deformed.obj"))?;
     let end = eval::render_mask(
         ctx,
@@ -152,7 +146,7 @@ pub fn eval(
         let canonical = Mesh::load_obj(dir.join("canonical.obj"))?;
         let training: Vec<(String, Vec<DVec3>)> = obj_files(&dir.join("train"))?
             .iter()
-            .map(|f| Ok((f.display().to_string(), eval::points(&Mesh::load_obj(f)?))))
+            .map(|f| Ok((f.display().to_string(), Mesh::load_obj(f)?.points())))
             .collect::<Result<_>>()?;
         eprintln!(
             "{category}: shape space from {} training instances",

@@ -717,7 +717,7 @@ fn demo(out: &Path) -> Result<()> {
     println!(
         "4. registered with pose noise in {:.0} ms: error {:.2} mm; pictures {2}/overlay_start.png, {2}/overlay_end.png (observed blue, rendered red)",
         result.milliseconds,
-        1e3 * vkdr::eval::mean_nearest(&vkdr::eval::points(&test), &result.vertices),
+        1e3 * vkdr::eval::mean_nearest(&test.points(), &result.vertices),
         register_out.display()
     );
     let render_out = out.join("render");

@@ -6,7 +6,7 @@ use anyhow::{bail, Context as _, Result};
 use glam::DVec3;
 
 use vkdr::cpd::CpdParams;
-use vkdr::eval::{mean_nearest, points};
+use vkdr::eval::mean_nearest;
 use vkdr::gpu::Context;
 use vkdr::shape::ShapeSpace;
 use vkdr::Mesh;
@@ -56,7 +56,7 @@ pub fn run(
     let canonical_mesh = match canonical {
         None => Mesh::load_obj(dir.join("canonical.obj"))?,
         Some("auto") => {
-            let clouds: Vec<Vec<DVec3>> = meshes.iter().map(|(_, m)| points(m)).collect();
+            let clouds: Vec<Vec<DVec3>> = meshes.iter().map(|(_, m)| m.points()).collect();
             let score = |i: usize| {
                 (0..clouds.len())
                     .filter(|&j| j != i)
@@ -77,8 +77,10 @@ pub fn run(
             None => bail!("no train/{name}.obj in {}", dir.display()),
         },
     };
-    let training: Vec<(String, Vec<DVec3>)> =
-        meshes.iter().map(|(n, m)| (n.clone(), points(m))).collect();
+    let training: Vec<(String, Vec<DVec3>)> = meshes
+        .iter()
+        .map(|(n, m)| (n.clone(), m.points()))
+        .collect();
     let ctx = Context::new()?;
     let total = training.len();
     let space = ShapeSpace::build(
