@@ -149,10 +149,9 @@ enum Command {
     },
 }
 
+/// The camera and pose flags shared by render, grad and register.
 #[derive(clap::Args)]
-struct RenderArgs {
-    /// OBJ file (triangle ids follow its face order).
-    mesh: PathBuf,
+struct ViewArgs {
     /// Pinhole intrinsics in pixels: fx,fy,cx,cy.
     #[arg(long)]
     intrinsics: String,
@@ -165,6 +164,20 @@ struct RenderArgs {
     /// Near clipping distance in metres.
     #[arg(long, default_value_t = Camera::DEFAULT_NEAR)]
     near: f64,
+}
+
+impl ViewArgs {
+    fn view(&self) -> Result<View> {
+        parse_view(&self.intrinsics, &self.size, &self.pose, self.near)
+    }
+}
+
+#[derive(clap::Args)]
+struct RenderArgs {
+    /// OBJ file (triangle ids follow its face order).
+    mesh: PathBuf,
+    #[command(flatten)]
+    view: ViewArgs,
     /// Also write the raw G-buffer: ids.npy, bary.npy, depth.npy.
     #[arg(long)]
     raw: bool,
@@ -187,13 +200,9 @@ struct RegisterArgs {
     observed_mesh: Option<PathBuf>,
     #[arg(long, allow_hyphen_values = true)]
     true_pose: Option<String>,
-    #[arg(long)]
-    intrinsics: String,
-    #[arg(long)]
-    size: String,
-    /// Initial object-to-camera pose tx,ty,tz,rx,ry,rz.
-    #[arg(long, allow_hyphen_values = true)]
-    pose: String,
+    /// The camera and the initial pose.
+    #[command(flatten)]
+    view: ViewArgs,
     /// Optimise the pose too (once per three shape updates; z stays fixed).
     #[arg(long)]
     optimize_pose: bool,
@@ -216,18 +225,8 @@ struct GradArgs {
     /// Observed mask PNG (nonzero = object), of exactly --size.
     #[arg(long)]
     observed: PathBuf,
-    /// Pinhole intrinsics in pixels: fx,fy,cx,cy.
-    #[arg(long)]
-    intrinsics: String,
-    /// Image size WxH.
-    #[arg(long)]
-    size: String,
-    /// Object-to-camera pose tx,ty,tz,rx,ry,rz (metres; axis-angle in radians).
-    #[arg(long, allow_hyphen_values = true)]
-    pose: String,
-    /// Near clipping distance in metres.
-    #[arg(long, default_value_t = Camera::DEFAULT_NEAR)]
-    near: f64,
+    #[command(flatten)]
+    view: ViewArgs,
     /// mse | iou | distance
     #[arg(long, default_value = "mse")]
     loss: String,
@@ -397,7 +396,7 @@ fn parse_view(intrinsics: &str, size: &str, pose: &str, near: f64) -> Result<Vie
 
 fn grad(args: &GradArgs) -> Result<()> {
     let mesh = Mesh::load_obj(&args.mesh)?;
-    let view = parse_view(&args.intrinsics, &args.size, &args.pose, args.near)?;
+    let view = args.view.view()?;
     let loss: vkdr::loss::Loss = args.loss.parse()?;
     let ctx = Context::new()?;
     let result = grad::run(&ctx, &mesh, view, &args.observed, loss, &args.out)?;
@@ -448,7 +447,7 @@ fn bench(size: u32, repeats: usize, max_vertices: usize, loss: &str, out: &Path)
 
 fn render(args: &RenderArgs) -> Result<()> {
     let mesh = Mesh::load_obj(&args.mesh)?;
-    let view = parse_view(&args.intrinsics, &args.size, &args.pose, args.near)?;
+    let view = args.view.view()?;
     let (camera, pose) = (view.camera, view.pose);
     let (width, height) = (camera.width, camera.height);
 
@@ -542,19 +541,14 @@ fn write_views(
 
 fn register(args: &RegisterArgs) -> Result<()> {
     let space = vkdr::shape::ShapeSpace::load(&args.space)?;
-    let view = parse_view(
-        &args.intrinsics,
-        &args.size,
-        &args.pose,
-        Camera::DEFAULT_NEAR,
-    )?;
+    let view = args.view.view()?;
     let ctx = Context::new()?;
     let (w, h) = (view.camera.width, view.camera.height);
     let observed = match (&args.observed, &args.observed_mesh) {
         (Some(mask), _) => vkdr::loss::load_mask(mask, w, h)?,
         (None, Some(mesh)) => {
             let truth = match &args.true_pose {
-                Some(p) => parse_view(&args.intrinsics, &args.size, p, Camera::DEFAULT_NEAR)?,
+                Some(p) => parse_view(&args.view.intrinsics, &args.view.size, p, args.view.near)?,
                 None => view,
             };
             let registrar = vkdr::register::Registrar::new(&ctx)?;
