@@ -91,5 +91,16 @@ fn a_mask_of_the_wrong_size_is_an_error() {
     assert!(err.contains("20x10") && err.contains("10x20"), "{err}");
     let mask = load_mask(&path, 20, 10).unwrap();
     assert!(mask.iter().all(|&m| m == 1.0));
+    // Black is background, whatever the format's alpha says.
+    let mut picture = image::GrayImage::new(20, 10);
+    picture.put_pixel(3, 4, image::Luma([200]));
+    picture.save(&path).unwrap();
+    let mask = load_mask(&path, 20, 10).unwrap();
+    assert_eq!(mask.iter().filter(|&&m| m == 1.0).count(), 1);
+    assert_eq!(mask[4 * 20 + 3], 1.0);
+    image::RgbaImage::from_pixel(20, 10, image::Rgba([0, 0, 0, 255]))
+        .save(&path)
+        .unwrap();
+    assert!(load_mask(&path, 20, 10).unwrap().iter().all(|&m| m == 0.0));
     std::fs::remove_dir_all(&dir).unwrap();
 }

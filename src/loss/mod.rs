@@ -66,7 +66,8 @@ impl std::str::FromStr for Loss {
     }
 }
 
-/// Reads a mask PNG: 1 where any channel is nonzero, else 0, row-major. A size other
+/// Reads a mask PNG: 1 where any colour channel is nonzero, else 0, row-major (an alpha
+/// channel is ignored: opaque black is background). A size other
 /// than `width` x `height` is an error (never a silent resize).
 pub fn load_mask(path: &Path, width: u32, height: u32) -> Result<Vec<f32>> {
     let image = image::open(path).map_err(|e| Error::format(path, e.to_string()))?;
@@ -80,8 +81,8 @@ pub fn load_mask(path: &Path, width: u32, height: u32) -> Result<Vec<f32>> {
             ),
         ));
     }
-    let rgba = image.to_rgba8();
-    Ok(rgba
+    let rgb = image.to_rgb8();
+    Ok(rgb
         .pixels()
         .map(|p| {
             if p.0.iter().any(|&c| c != 0) {
