@@ -83,6 +83,29 @@ impl Mesh {
         Self::new(positions, self.triangles.clone())
     }
 
+    /// Midpoint subdivision: every triangle becomes four, edge midpoints are shared, so
+    /// the surface is unchanged and a welded mesh stays welded (about 4x the vertices).
+    pub fn subdivided(&self) -> Self {
+        let mut positions = self.positions.clone();
+        let mut midpoints = std::collections::HashMap::new();
+        let mut midpoint = |a: u32, b: u32| -> u32 {
+            *midpoints.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                let (p, q) = (positions[a as usize], positions[b as usize]);
+                positions.push(std::array::from_fn(|k| 0.5 * (p[k] + q[k])));
+                positions.len() as u32 - 1
+            })
+        };
+        let mut triangles = Vec::with_capacity(4 * self.triangles.len());
+        for &[a, b, c] in &self.triangles {
+            let (ab, bc, ca) = (midpoint(a, b), midpoint(b, c), midpoint(c, a));
+            triangles.extend([[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]);
+        }
+        Self {
+            positions,
+            triangles,
+        }
+    }
+
     pub fn vertex_count(&self) -> usize {
         self.positions.len()
     }
@@ -369,5 +392,19 @@ mod tests {
             let (v, f) = (closed.vertex_count() as i64, closed.triangle_count() as i64);
             assert_eq!(v - 3 * f / 2 + f, 2);
         }
+    }
+
+    #[test]
+    fn subdivision_keeps_the_surface_closed_and_in_place() {
+        let mesh = Mesh::bottle(16);
+        let fine = mesh.subdivided();
+        let edges = 3 * mesh.triangle_count() / 2;
+        assert_eq!(fine.vertex_count(), mesh.vertex_count() + edges);
+        assert_eq!(fine.triangle_count(), 4 * mesh.triangle_count());
+        assert_eq!(fine.bounds(), mesh.bounds());
+        assert_eq!(&fine.positions()[..mesh.vertex_count()], mesh.positions());
+        let (v, f) = (fine.vertex_count() as i64, fine.triangle_count() as i64);
+        assert_eq!(v - 3 * f / 2 + f, 2, "still a closed genus-0 surface");
+        Mesh::new(fine.positions.clone(), fine.triangles.clone()).unwrap();
     }
 }

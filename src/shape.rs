@@ -43,15 +43,12 @@ pub struct ShapeSpace {
     pub training_names: Vec<String>,
 }
 
-/// G applied to a flattened M x 3 field, with G in data units.
-fn kernel_apply(canonical: &[DVec3], beta: f64, field: &[f64]) -> Vec<f64> {
-    let g = cpd::kernel_matrix(canonical, beta);
-    let f = linalg::Matrix {
-        rows: canonical.len(),
-        cols: 3,
-        data: field.to_vec(),
-    };
-    g.mul(&f).data
+/// What CPD found for one training instance, both flattened M x 3: the coefficients W and
+/// the displacement G W they make (with the G of the fit: dense, or low-rank for large M).
+#[derive(Clone, Debug)]
+pub struct TrainingFit {
+    pub w: Vec<f64>,
+    pub displacement: Vec<f64>,
 }
 
 impl ShapeSpace {
@@ -72,56 +69,70 @@ impl ShapeSpace {
                 training.len()
             )));
         }
-        if canonical.vertex_count() > CpdParams::DENSE_LIMIT {
-            return Err(Error::InvalidInput(format!(
-                "the canonical mesh has {} vertices; shape spaces support up to {} (dense kernel)",
-                canonical.vertex_count(),
-                CpdParams::DENSE_LIMIT
-            )));
-        }
         let c = canonical.points();
         let pipelines = CpdPipelines::new(ctx)?;
-        let mut ws = Vec::new();
+        let mut fits = Vec::new();
         for (i, (name, points)) in training.iter().enumerate() {
             progress(i, training.len(), name);
             let result = cpd::register(ctx, &pipelines, &c, points, params, &mut |_, _| {})?;
-            ws.push(
-                result
-                    .w
+            fits.push(TrainingFit {
+                w: result.w.iter().flat_map(|w| w.to_array()).collect(),
+                displacement: result
+                    .deformed
                     .iter()
-                    .flat_map(|w| w.to_array())
-                    .collect::<Vec<f64>>(),
-            );
+                    .zip(&c)
+                    .flat_map(|(t, y)| (*t - *y).to_array())
+                    .collect(),
+            });
         }
         progress(training.len(), training.len(), "");
         let beta = params.beta * Normalization::of(&c).scale;
-        Self::from_coefficients(
+        Self::from_fits(
             category,
             canonical,
             beta,
-            &ws,
+            &fits,
             dims,
             training.iter().map(|t| t.0.clone()).collect(),
         )
     }
 
-    /// PCA of the flattened coefficients (T x 3M) through the T x T Gram matrix.
-    pub fn from_coefficients(
+    /// PCA of the flattened coefficients (T x 3M) through the T x T Gram matrix. G is
+    /// linear, so `d0 = G mean` and `B = G U` are the same combinations of the fits'
+    /// displacements: no kernel product is needed here, at any size.
+    pub fn from_fits(
         category: &str,
         canonical: &Mesh,
         beta: f64,
-        ws: &[Vec<f64>],
+        fits: &[TrainingFit],
         dims: usize,
         names: Vec<String>,
     ) -> Result<Self> {
-        let t = ws.len();
-        let d = ws[0].len();
-        let mean: Vec<f64> = (0..d)
-            .map(|j| ws.iter().map(|w| w[j]).sum::<f64>() / t as f64)
-            .collect();
-        let centred: Vec<Vec<f64>> = ws
+        let t = fits.len();
+        let d = 3 * canonical.vertex_count();
+        if t < 2
+            || fits
+                .iter()
+                .any(|f| f.w.len() != d || f.displacement.len() != d)
+        {
+            return Err(Error::InvalidInput(format!(
+                "a shape space needs at least 2 fits of {d} values each"
+            )));
+        }
+        let mean_of = |field: fn(&TrainingFit) -> &[f64]| -> Vec<f64> {
+            (0..d)
+                .map(|j| fits.iter().map(|f| field(f)[j]).sum::<f64>() / t as f64)
+                .collect()
+        };
+        let mean = mean_of(|f| &f.w);
+        let offset = mean_of(|f| &f.displacement);
+        let centre = |values: &[f64], mean: &[f64]| -> Vec<f64> {
+            values.iter().zip(mean).map(|(a, b)| a - b).collect()
+        };
+        let centred: Vec<Vec<f64>> = fits.iter().map(|f| centre(&f.w, &mean)).collect();
+        let centred_displacements: Vec<Vec<f64>> = fits
             .iter()
-            .map(|w| w.iter().zip(&mean).map(|(a, b)| a - b).collect())
+            .map(|f| centre(&f.displacement, &offset))
             .collect();
         let mut gram = linalg::Matrix::zeros(t, t);
         for i in 0..t {
@@ -147,19 +158,18 @@ impl ShapeSpace {
             ));
         }
         let mut basis = Vec::new();
+        let mut deformation_basis = Vec::new();
         let mut singular_values = Vec::new();
         for j in 0..k {
             let sigma = values[j].max(0.0).sqrt();
-            // u_j = X^T v_j / sigma_j
-            let u: Vec<f64> = (0..d)
-                .map(|c| {
-                    (0..t)
-                        .map(|i| centred[i][c] * vectors.at(i, j))
-                        .sum::<f64>()
-                        / sigma
-                })
-                .collect();
-            basis.push(u);
+            // u_j = X^T v_j / sigma_j, and G u_j the same combination of displacements.
+            let combine = |rows: &[Vec<f64>]| -> Vec<f64> {
+                (0..d)
+                    .map(|c| (0..t).map(|i| rows[i][c] * vectors.at(i, j)).sum::<f64>() / sigma)
+                    .collect()
+            };
+            basis.push(combine(&centred));
+            deformation_basis.push(combine(&centred_displacements));
             singular_values.push(sigma);
         }
         let training_codes = centred
@@ -167,9 +177,6 @@ impl ShapeSpace {
             .map(|w| basis.iter().map(|u| dot(u, w)).collect())
             .collect();
         let explained_variance = values[..k].iter().map(|v| v / total).collect();
-        let c = canonical.points();
-        let offset = kernel_apply(&c, beta, &mean);
-        let deformation_basis = basis.iter().map(|u| kernel_apply(&c, beta, u)).collect();
         Ok(Self {
             canonical: canonical.clone(),
             beta,

@@ -136,3 +136,44 @@ fn round_trips_through_its_file_and_refuses_corrupt_ones() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Above the dense limit the fits are low-rank; the space must still reproduce every
+/// training fit exactly from its code.
+#[test]
+fn large_canonical_builds_from_low_rank_fits() {
+    let ctx = common::context();
+    let mut rng = Rng::new(4);
+    let canonical = instance("bottle", &mut rng)
+        .unwrap()
+        .subdivided()
+        .subdivided();
+    assert!(canonical.vertex_count() > CpdParams::DENSE_LIMIT);
+    let train: Vec<(String, Vec<DVec3>)> = (0..3)
+        .map(|i| {
+            (
+                format!("b{i}"),
+                instance("bottle", &mut rng).unwrap().points(),
+            )
+        })
+        .collect();
+    let params = CpdParams {
+        max_iterations: 30,
+        ..CpdParams::default()
+    };
+    let space =
+        ShapeSpace::build(&ctx, "bottle", &canonical, &train, 5, &params, |_, _, _| {}).unwrap();
+    assert_eq!(space.dims(), 2);
+    let pipelines = CpdPipelines::new(&ctx).unwrap();
+    let c = canonical.points();
+    for (i, (_, target)) in train.iter().enumerate() {
+        let fit = cpd::register(&ctx, &pipelines, &c, target, &params, &mut |_, _| {}).unwrap();
+        let from_space = space.vertices(&space.training_codes[i]).unwrap();
+        let worst = from_space
+            .iter()
+            .zip(&fit.deformed)
+            .map(|(a, b)| (*a - *b).length())
+            .fold(0.0, f64::max);
+        assert!(worst < 1e-6, "instance {i}: {worst} m");
+    }
+    common::assert_no_validation_errors(&ctx);
+}
