@@ -8,7 +8,7 @@ use glam::DVec3;
 use vkdr::cpd::CpdParams;
 use vkdr::dataset::{instance, Rng};
 use vkdr::raster::{Outputs, Rasterizer, View};
-use vkdr::register::{RegisterParams, Registrar};
+use vkdr::register::{Job, RegisterParams, Registrar};
 use vkdr::shape::ShapeSpace;
 use vkdr::{Camera, Pose};
 
@@ -155,4 +155,65 @@ fn pose_and_shape_converge_jointly() {
     );
     assert!(after < 0.3 * before, "translation {before} -> {after}");
     assert_eq!(result.pose.translation.z as f32, 0.6, "z stays fixed");
+}
+
+/// Registrations batched in one submission give what each gives alone (up to the order of
+/// float atomics), each with its own plateau stop.
+#[test]
+fn batched_registrations_match_single_ones() {
+    let ctx = common::context();
+    let space = space(&ctx);
+    let poses = [
+        Pose::new([0.0, 0.0, 0.6], [2.9, 0.3, 0.1]).unwrap(),
+        Pose::new([0.01, 0.0, 0.65], [2.5, -0.4, 0.2]).unwrap(),
+        Pose::new([-0.01, 0.01, 0.55], [1.9, 0.1, -0.3]).unwrap(),
+    ];
+    let observations: Vec<(View, Vec<f32>)> = poses
+        .iter()
+        .enumerate()
+        .map(|(i, &pose)| {
+            let view = View {
+                camera: camera(),
+                pose,
+            };
+            let truth = &space.training_codes[i + 1];
+            (
+                view,
+                observe(&ctx, &space, &space.vertices(truth).unwrap(), view),
+            )
+        })
+        .collect();
+    let registrar = Registrar::new(&ctx).unwrap();
+    let params = RegisterParams {
+        iterations: 30,
+        check_every: 5,
+        plateau: 0.02,
+        ..Default::default()
+    };
+    let jobs: Vec<Job> = observations
+        .iter()
+        .map(|(view, observed)| Job {
+            space: &space,
+            observed,
+            view: *view,
+        })
+        .collect();
+    let batch = registrar
+        .register_batch(&ctx, &jobs, &params, |_, _| {})
+        .unwrap();
+    common::assert_no_validation_errors(&ctx);
+    assert_eq!(batch.len(), jobs.len());
+    for (job, batched) in jobs.iter().zip(&batch) {
+        let single = registrar
+            .register(&ctx, &space, job.observed, job.view, &params, |_, _| {})
+            .unwrap();
+        eprintln!(
+            "single {:?} ({} it) batched {:?} ({} it)",
+            single.code, single.iterations, batched.code, batched.iterations
+        );
+        assert_eq!(single.iterations, batched.iterations);
+        for (a, b) in single.code.iter().zip(&batched.code) {
+            assert!((a - b).abs() < 1e-3 * (1.0 + a.abs()), "{a} vs {b}");
+        }
+    }
 }

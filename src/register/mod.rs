@@ -106,6 +106,31 @@ impl State {
     fn codes(dims: usize, iterations: usize) -> usize {
         Self::losses(dims) + iterations
     }
+    fn len(dims: usize, iterations: usize) -> usize {
+        Self::codes(dims, iterations) + iterations * dims
+    }
+}
+
+impl OptimizerConstants {
+    fn new(dims: usize, params: &RegisterParams) -> Self {
+        Self {
+            dims: dims as u32,
+            pose_every: params.pose_every as u32,
+            optimize_z: params.optimize_z as u32,
+            adam: params.adam as u32,
+            momentum: params.momentum as f32,
+            decay: params.decay as f32,
+            latent_step: params.latent_step as f32,
+            translation_step: params.translation_step as f32,
+            rotation_step: params.rotation_step as f32,
+            max_iterations: params.iterations as u32,
+            shape_after: if params.pose_every > 0 {
+                params.pose_first.min(params.iterations) as u32
+            } else {
+                0
+            },
+        }
+    }
 }
 
 /// The registration pipelines (besides the differentiable renderer's).
@@ -162,27 +187,190 @@ impl Registrar {
         observed: &[f32],
         view: View,
         params: &RegisterParams,
-        mut on_chunk: impl FnMut(usize, f64),
+        on_chunk: impl FnMut(usize, f64),
     ) -> Result<Registration> {
+        let job = Job {
+            space,
+            observed,
+            view,
+        };
+        let mut results = self.register_batch(ctx, &[job], params, on_chunk)?;
+        Ok(results.remove(0))
+    }
+
+    /// Runs several independent registrations together: each chunk of iterations of all
+    /// of them goes in one submission, and a registration that reached its plateau drops
+    /// out of the next chunks. `on_chunk` sees the most iterations done by any job and
+    /// the mean of the latest losses. Each result's `milliseconds` is the batch's wall time
+    /// until it finished.
+    pub fn register_batch(
+        &self,
+        ctx: &Context,
+        jobs: &[Job],
+        params: &RegisterParams,
+        mut on_chunk: impl FnMut(usize, f64),
+    ) -> Result<Vec<Registration>> {
         let started = Instant::now();
-        let k = space.dims();
-        let m = space.canonical.vertex_count();
         if params.iterations == 0 {
             return Err(Error::InvalidInput(
                 "registration needs at least one iteration".into(),
             ));
         }
+        if jobs.is_empty() {
+            return Ok(Vec::new());
+        }
+        let mut tasks = jobs
+            .iter()
+            .map(|job| Task::new(ctx, job, params))
+            .collect::<Result<Vec<_>>>()?;
+        let mut rec = Recorder::new(ctx)?;
+        for task in &tasks {
+            task.scene.record_prepare(&self.renderer, &mut rec)?;
+        }
+        ctx.submit_and_wait(rec)?;
+
+        let chunk = params.check_every.clamp(1, params.iterations);
+        // The last recording, replayed while the same jobs run chunks of the same length.
+        let mut cached: Option<(Vec<usize>, usize, crate::gpu::Recording)> = None;
+        loop {
+            let active: Vec<usize> = (0..tasks.len()).filter(|&i| tasks[i].active).collect();
+            if active.is_empty() {
+                break;
+            }
+            let n = active
+                .iter()
+                .map(|&i| chunk.min(params.iterations - tasks[i].done))
+                .min()
+                .unwrap_or(chunk);
+            let reusable = matches!(&cached, Some((a, c, _)) if *a == active && *c == n);
+            if !reusable {
+                let mut rec = Recorder::new(ctx)?;
+                for _ in 0..n {
+                    for &i in &active {
+                        self.record_iteration(&mut rec, &tasks[i], params)?;
+                    }
+                }
+                cached = Some((active.clone(), n, rec.finish()?));
+            }
+            if let Some((_, _, recording)) = &cached {
+                ctx.replay(recording)?;
+            }
+            let mut latest = 0.0;
+            for &i in &active {
+                let task = &mut tasks[i];
+                task.done += n;
+                latest += task.check_plateau(params)? / active.len() as f64;
+                if !task.active {
+                    task.milliseconds = started.elapsed().as_secs_f64() * 1e3;
+                }
+            }
+            let most = tasks.iter().map(|t| t.done).max().unwrap_or(0);
+            on_chunk(most, latest);
+        }
+        tasks.iter().map(|task| task.result(params)).collect()
+    }
+
+    /// Records one iteration of one registration.
+    fn record_iteration(
+        &self,
+        rec: &mut Recorder,
+        task: &Task,
+        params: &RegisterParams,
+    ) -> Result<()> {
+        let (m, k) = (task.m, task.k);
+        let scene = &task.scene;
+        rec.bind_compute(&self.deform);
+        rec.push_compute_bindings(
+            &self.deform,
+            &[
+                Binding::buffer(&task.base),
+                Binding::buffer(&task.basis),
+                Binding::buffer(&task.state),
+                Binding::buffer(scene.mesh().positions()),
+            ],
+        );
+        let deform_constants = DeformConstants {
+            vertex_count: m as u32,
+            dims: k as u32,
+            latent_at: State::LATENT as u32,
+        };
+        rec.compute_constants(&self.deform, &deform_constants);
+        rec.dispatch((m as u32).div_ceil(64), 1, 1);
+        rec.memory_barrier();
+        scene.record(&self.renderer, rec, None)?;
+        rec.fill_buffer(&task.grad_latent, 0);
+        rec.memory_barrier();
+        rec.bind_compute(&self.latent_gradient);
+        rec.push_compute_bindings(
+            &self.latent_gradient,
+            &[
+                Binding::buffer(&task.basis),
+                Binding::buffer(scene.vertex_gradient()),
+                Binding::buffer(&task.grad_latent),
+            ],
+        );
+        rec.compute_constants(&self.latent_gradient, &[m as u32, k as u32]);
+        rec.dispatch(1, 1, k as u32);
+        rec.memory_barrier();
+        rec.bind_compute(&self.optimizer);
+        rec.push_compute_bindings(
+            &self.optimizer,
+            &[
+                Binding::buffer(&task.state),
+                Binding::buffer(&task.grad_latent),
+                Binding::buffer(scene.pose_gradient()),
+                Binding::buffer(scene.loss_stats()),
+                Binding::buffer(scene.views().views()),
+            ],
+        );
+        rec.compute_constants(&self.optimizer, &OptimizerConstants::new(k, params));
+        rec.dispatch(1, 1, 1);
+        rec.memory_barrier();
+        Ok(())
+    }
+}
+
+/// One registration to run: a shape space, an observed mask ([row][column], nonzero =
+/// object) and the view it was seen through (its pose is the initial pose).
+#[derive(Clone, Copy)]
+pub struct Job<'a> {
+    pub space: &'a ShapeSpace,
+    pub observed: &'a [f32],
+    pub view: View,
+}
+
+/// A registration's device buffers and progress.
+struct Task<'a> {
+    space: &'a ShapeSpace,
+    scene: Scene,
+    /// Training standard deviation of each latent dimension (the device's code unit).
+    stds: Vec<f64>,
+    base: Buffer,
+    basis: Buffer,
+    state: Buffer,
+    grad_latent: Buffer,
+    m: usize,
+    k: usize,
+    done: usize,
+    active: bool,
+    best: f64,
+    milliseconds: f64,
+}
+
+impl<'a> Task<'a> {
+    fn new(ctx: &Context, job: &Job<'a>, params: &RegisterParams) -> Result<Self> {
+        let space = job.space;
+        let k = space.dims();
         let scene = Scene::new(
             ctx,
             &SceneDesc {
                 mesh: &space.canonical,
-                views: &[view],
+                views: &[job.view],
                 loss: params.loss,
-                observed,
+                observed: job.observed,
                 attributes: None,
             },
         )?;
-        // Codes in units of each dimension's training standard deviation.
         let stds: Vec<f64> = (0..k)
             .map(|j| {
                 let t = space.training_codes.len() as f64;
@@ -209,140 +397,69 @@ impl Registrar {
             .zip(&stds)
             .flat_map(|(b, &s)| b.iter().map(move |&v| (v * s) as f32))
             .collect();
-        let base = Buffer::from_slice(ctx, "canonical + offset", &base)?;
-        let basis = Buffer::from_slice(ctx, "scaled deformation basis", &basis)?;
-        let state_len = State::codes(k, params.iterations) + params.iterations * k;
-        let state = Buffer::from_slice(ctx, "optimizer state", &vec![0f32; state_len])?;
-        let grad_latent = Buffer::from_slice(ctx, "latent gradient", &vec![0f32; k.max(1)])?;
+        let state_len = State::len(k, params.iterations);
+        Ok(Self {
+            space,
+            scene,
+            stds,
+            base: Buffer::from_slice(ctx, "canonical + offset", &base)?,
+            basis: Buffer::from_slice(ctx, "scaled deformation basis", &basis)?,
+            state: Buffer::from_slice(ctx, "optimizer state", &vec![0f32; state_len])?,
+            grad_latent: Buffer::from_slice(ctx, "latent gradient", &vec![0f32; k.max(1)])?,
+            m: space.canonical.vertex_count(),
+            k,
+            done: 0,
+            active: true,
+            best: f64::INFINITY,
+            milliseconds: 0.0,
+        })
+    }
 
-        let deform_constants = DeformConstants {
-            vertex_count: m as u32,
-            dims: k as u32,
-            latent_at: State::LATENT as u32,
-        };
-        let optimizer_constants = OptimizerConstants {
-            dims: k as u32,
-            pose_every: params.pose_every as u32,
-            optimize_z: params.optimize_z as u32,
-            adam: params.adam as u32,
-            momentum: params.momentum as f32,
-            decay: params.decay as f32,
-            latent_step: params.latent_step as f32,
-            translation_step: params.translation_step as f32,
-            rotation_step: params.rotation_step as f32,
-            max_iterations: params.iterations as u32,
-            shape_after: if params.pose_every > 0 {
-                params.pose_first.min(params.iterations) as u32
-            } else {
-                0
-            },
-        };
-        let record_iteration = |rec: &mut Recorder| -> Result<()> {
-            rec.bind_compute(&self.deform);
-            rec.push_compute_bindings(
-                &self.deform,
-                &[
-                    Binding::buffer(&base),
-                    Binding::buffer(&basis),
-                    Binding::buffer(&state),
-                    Binding::buffer(scene.mesh().positions()),
-                ],
-            );
-            rec.compute_constants(&self.deform, &deform_constants);
-            rec.dispatch((m as u32).div_ceil(64), 1, 1);
-            rec.memory_barrier();
-            scene.record(&self.renderer, rec, None)?;
-            rec.fill_buffer(&grad_latent, 0);
-            rec.memory_barrier();
-            rec.bind_compute(&self.latent_gradient);
-            rec.push_compute_bindings(
-                &self.latent_gradient,
-                &[
-                    Binding::buffer(&basis),
-                    Binding::buffer(scene.vertex_gradient()),
-                    Binding::buffer(&grad_latent),
-                ],
-            );
-            rec.compute_constants(&self.latent_gradient, &[m as u32, k as u32]);
-            rec.dispatch(1, 1, k as u32);
-            rec.memory_barrier();
-            rec.bind_compute(&self.optimizer);
-            rec.push_compute_bindings(
-                &self.optimizer,
-                &[
-                    Binding::buffer(&state),
-                    Binding::buffer(&grad_latent),
-                    Binding::buffer(scene.pose_gradient()),
-                    Binding::buffer(scene.loss_stats()),
-                    Binding::buffer(scene.views().views()),
-                ],
-            );
-            rec.compute_constants(&self.optimizer, &optimizer_constants);
-            rec.dispatch(1, 1, 1);
-            rec.memory_barrier();
-            Ok(())
-        };
-
-        let mut rec = Recorder::new(ctx)?;
-        scene.record_prepare(&self.renderer, &mut rec)?;
-        ctx.submit_and_wait(rec)?;
-        let chunk = params.check_every.clamp(1, params.iterations);
-        let mut rec = Recorder::new(ctx)?;
-        for _ in 0..chunk {
-            record_iteration(&mut rec)?;
+    /// Reads the losses so far, stops the task on a plateau or at the last iteration, and
+    /// returns the latest loss.
+    fn check_plateau(&mut self, params: &RegisterParams) -> Result<f64> {
+        let losses = self
+            .state
+            .read_range::<f32>(State::losses(self.k) as u64 * 4, self.done)?;
+        let best = losses.iter().copied().fold(f32::INFINITY, f32::min) as f64;
+        let plateau = best.is_finite()
+            && self.best.is_finite()
+            && self.best - best <= params.plateau * self.best.abs();
+        self.best = self.best.min(best);
+        if plateau || self.done >= params.iterations {
+            self.active = false;
         }
-        let chunk_recording = rec.finish()?;
-        let mut done = 0;
-        let mut previous_best = f64::INFINITY;
-        while done < params.iterations {
-            let n = chunk.min(params.iterations - done);
-            if n == chunk {
-                ctx.replay(&chunk_recording)?;
-            } else {
-                let mut rec = Recorder::new(ctx)?;
-                for _ in 0..n {
-                    record_iteration(&mut rec)?;
-                }
-                ctx.submit_and_wait(rec)?;
-            }
-            done += n;
-            let losses = state.read_range::<f32>(State::losses(k) as u64 * 4, done)?;
-            let best = losses.iter().copied().fold(f32::INFINITY, f32::min) as f64;
-            on_chunk(done, *losses.last().unwrap_or(&f32::NAN) as f64);
-            if best.is_finite()
-                && previous_best.is_finite()
-                && previous_best - best <= params.plateau * previous_best.abs()
-            {
-                break;
-            }
-            previous_best = previous_best.min(best);
-        }
+        Ok(*losses.last().unwrap_or(&f32::NAN) as f64)
+    }
 
-        let values = state.read_range::<f32>(0, state_len)?;
+    fn result(&self, params: &RegisterParams) -> Result<Registration> {
+        let k = self.k;
+        let values = self
+            .state
+            .read_range::<f32>(0, State::len(k, params.iterations))?;
         let code: Vec<f64> = (0..k)
-            .map(|j| values[State::LATENT + j] as f64 * stds[j])
+            .map(|j| values[State::LATENT + j] as f64 * self.stds[j])
             .collect();
-        let losses = values[State::losses(k)..State::losses(k) + done]
+        let losses = values[State::losses(k)..State::losses(k) + self.done]
             .iter()
             .map(|&l| l as f64)
             .collect();
         let at = State::codes(k, params.iterations);
-        let codes = (0..done)
+        let codes = (0..self.done)
             .map(|t| {
                 (0..k)
-                    .map(|j| values[at + t * k + j] as f64 * stds[j])
+                    .map(|j| values[at + t * k + j] as f64 * self.stds[j])
                     .collect()
             })
             .collect();
-        let pose = read_pose(scene.views())?;
         Ok(Registration {
-            vertices: space.vertices(&code)?,
+            vertices: self.space.vertices(&code)?,
             code,
-            pose,
+            pose: read_pose(self.scene.views())?,
             losses,
             codes,
-            iterations: done,
-            milliseconds: started.elapsed().as_secs_f64() * 1e3,
+            iterations: self.done,
+            milliseconds: self.milliseconds,
         })
     }
 }
