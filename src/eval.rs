@@ -100,6 +100,21 @@ pub fn view_pose(azimuth: f64, elevation: f64, distance: f64) -> Pose {
     }
 }
 
+/// `pose` disturbed by uniform noise: +-`translation` in camera x and y, and a rotation of
+/// +-`rotation` about each camera axis applied on the left.
+pub fn noisy_pose(pose: Pose, rng: &mut Rng, translation: f64, rotation: f64) -> Pose {
+    let mut noise = |a: f64| rng.range(-a, a);
+    let dt = DVec3::new(noise(translation), noise(translation), 0.0);
+    let dr = DVec3::new(noise(rotation), noise(rotation), noise(rotation));
+    Pose {
+        translation: pose.translation + dt,
+        rotation: glam::DQuat::from_mat3(
+            &(DMat3::from_euler(glam::EulerRot::XYZ, dr.x, dr.y, dr.z) * pose.rotation_matrix()),
+        )
+        .to_scaled_axis(),
+    }
+}
+
 /// Mean and (sample) standard deviation.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Stat {
@@ -203,25 +218,12 @@ pub fn evaluate_instance(
             settings.trials,
         )?;
 
-        let noise = |rng: &mut Rng, a: f64| rng.range(-a, a);
-        let dt = DVec3::new(
-            noise(&mut rng, settings.translation_noise),
-            noise(&mut rng, settings.translation_noise),
-            0.0,
+        let start = noisy_pose(
+            pose,
+            &mut rng,
+            settings.translation_noise,
+            settings.rotation_noise,
         );
-        let dr = DVec3::new(
-            noise(&mut rng, settings.rotation_noise),
-            noise(&mut rng, settings.rotation_noise),
-            noise(&mut rng, settings.rotation_noise),
-        );
-        let start = Pose {
-            translation: pose.translation + dt,
-            rotation: glam::DQuat::from_mat3(
-                &(DMat3::from_euler(glam::EulerRot::XYZ, dr.x, dr.y, dr.z)
-                    * pose.rotation_matrix()),
-            )
-            .to_scaled_axis(),
-        };
         let result = registrar.register(
             ctx,
             space,

@@ -13,7 +13,9 @@ use glam::{DMat3, DVec3};
 
 use crate::diff::{DiffRenderer, Scene, SceneDesc};
 use crate::error::{Error, Result};
-use crate::gpu::{spirv, Binding, BindingKind, Buffer, ComputePipeline, Context, Recorder};
+use crate::gpu::{
+    spirv, Binding, BindingKind, Buffer, ComputePipeline, Context, Recorder, Recording, Timestamps,
+};
 use crate::loss::Loss;
 use crate::raster::View;
 use crate::shape::ShapeSpace;
@@ -231,7 +233,7 @@ impl Registrar {
 
         let chunk = params.check_every.clamp(1, params.iterations);
         // The last recording, replayed while the same jobs run chunks of the same length.
-        let mut cached: Option<(Vec<usize>, usize, crate::gpu::Recording)> = None;
+        let mut cached: Option<(Vec<usize>, usize, Recording)> = None;
         loop {
             let active: Vec<usize> = (0..tasks.len()).filter(|&i| tasks[i].active).collect();
             if active.is_empty() {
@@ -247,7 +249,7 @@ impl Registrar {
                 let mut rec = Recorder::new(ctx)?;
                 for _ in 0..n {
                     for &i in &active {
-                        self.record_iteration(&mut rec, &tasks[i], params)?;
+                        self.record_iteration(&mut rec, &tasks[i], params, None)?;
                     }
                 }
                 cached = Some((active.clone(), n, rec.finish()?));
@@ -270,15 +272,54 @@ impl Registrar {
         tasks.iter().map(|task| task.result(params)).collect()
     }
 
-    /// Records one iteration of one registration.
+    /// GPU milliseconds of each pass of one iteration, for `repeats` iterations of `job`
+    /// (each submitted alone, so that every one is timed from the device's timestamps).
+    pub fn profile(
+        &self,
+        ctx: &Context,
+        job: &Job,
+        params: &RegisterParams,
+        repeats: usize,
+    ) -> Result<Vec<PassTimes>> {
+        let task = Task::new(ctx, job, params)?;
+        let mut rec = Recorder::new(ctx)?;
+        task.scene.record_prepare(&self.renderer, &mut rec)?;
+        ctx.submit_and_wait(rec)?;
+        let outer = Timestamps::new(ctx, 4)?;
+        let inner = Timestamps::new(ctx, 3)?;
+        let mut times = Vec::new();
+        for _ in 0..repeats.min(params.iterations) {
+            let mut rec = Recorder::new(ctx)?;
+            self.record_iteration(&mut rec, &task, params, Some((&outer, &inner)))?;
+            ctx.submit_and_wait(rec)?;
+            let (o, i) = (outer.read_ms()?, inner.read_ms()?);
+            times.push(PassTimes {
+                deform: o[1] - o[0],
+                forward: i[1] - i[0],
+                backward: i[2] - i[1],
+                update: o[3] - o[2],
+                total: o[3] - o[0],
+            });
+        }
+        Ok(times)
+    }
+
+    /// Records one iteration of one registration; with `timing`, the outer timestamps
+    /// mark start, after deform, after the renderer's passes and end, the inner ones the
+    /// renderer's own (see [`Scene::record`]).
     fn record_iteration(
         &self,
         rec: &mut Recorder,
         task: &Task,
         params: &RegisterParams,
+        timing: Option<(&Timestamps, &Timestamps)>,
     ) -> Result<()> {
         let (m, k) = (task.m, task.k);
         let scene = &task.scene;
+        if let Some((outer, _)) = timing {
+            rec.reset_timestamps(outer);
+            rec.timestamp(outer, 0);
+        }
         rec.bind_compute(&self.deform);
         rec.push_compute_bindings(
             &self.deform,
@@ -297,7 +338,13 @@ impl Registrar {
         rec.compute_constants(&self.deform, &deform_constants);
         rec.dispatch((m as u32).div_ceil(64), 1, 1);
         rec.memory_barrier();
-        scene.record(&self.renderer, rec, None)?;
+        if let Some((outer, _)) = timing {
+            rec.timestamp(outer, 1);
+        }
+        scene.record(&self.renderer, rec, timing.map(|t| t.1))?;
+        if let Some((outer, _)) = timing {
+            rec.timestamp(outer, 2);
+        }
         rec.fill_buffer(&task.grad_latent, 0);
         rec.memory_barrier();
         rec.bind_compute(&self.latent_gradient);
@@ -326,8 +373,25 @@ impl Registrar {
         rec.compute_constants(&self.optimizer, &OptimizerConstants::new(k, params));
         rec.dispatch(1, 1, 1);
         rec.memory_barrier();
+        if let Some((outer, _)) = timing {
+            rec.timestamp(outer, 3);
+        }
         Ok(())
     }
+}
+
+/// Device time of one iteration's passes, milliseconds.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PassTimes {
+    /// C + d0 + B s.
+    pub deform: f64,
+    /// Rasterize, classify, antialias, loss.
+    pub forward: f64,
+    /// Backward to the vertices and the pose.
+    pub backward: f64,
+    /// dL/ds and the optimiser step.
+    pub update: f64,
+    pub total: f64,
 }
 
 /// One registration to run: a shape space, an observed mask ([row][column], nonzero =

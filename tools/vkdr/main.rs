@@ -1,6 +1,7 @@
 //! The `vkdr` command line: device information, G-buffer renders and the demo.
 
 mod bench;
+mod bench_register;
 mod cpd_cmd;
 mod eval_cmd;
 mod grad;
@@ -54,6 +55,34 @@ enum Command {
         #[arg(long, default_value = "mse")]
         loss: String,
         /// Output directory for bench.csv, bench.json and bench.png.
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Time one registration at benchmark size (30 iterations, 640x480, ~1e4 vertices):
+    /// wall time, device time per pass, batched throughput, speed against error.
+    BenchRegister {
+        #[arg(long, default_value = "bottle")]
+        category: String,
+        /// Midpoint subdivisions of the canonical (each about 4x the vertices; the bottle
+        /// has 226, so 3 gives 14 338).
+        #[arg(long, default_value_t = 3)]
+        subdivide: u32,
+        /// Image size WxH.
+        #[arg(long, default_value = "640x480")]
+        size: String,
+        #[arg(long, default_value_t = 30)]
+        iterations: usize,
+        /// Timed registrations (after one warm-up); medians are reported.
+        #[arg(long, default_value_t = 5)]
+        repeats: usize,
+        /// Registrations in the throughput comparison.
+        #[arg(long, default_value_t = 4)]
+        batch: usize,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Reuse the space.npz of an earlier run with the same category, subdivision and seed.
+        #[arg(long)]
+        space: Option<PathBuf>,
         #[arg(long)]
         out: PathBuf,
     },
@@ -248,6 +277,33 @@ fn main() {
             loss,
             out,
         } => bench(size, repeats, max_vertices, &loss, &out),
+        Command::BenchRegister {
+            category,
+            subdivide,
+            size,
+            iterations,
+            repeats,
+            batch,
+            seed,
+            space,
+            out,
+        } => parse_size(&size)
+            .map_err(anyhow::Error::from)
+            .and_then(|(width, height)| {
+                let args = bench_register::Args {
+                    category,
+                    subdivide,
+                    width,
+                    height,
+                    iterations,
+                    repeats,
+                    batch,
+                    seed,
+                    space,
+                    out,
+                };
+                bench_register::run(&Context::new()?, &args)
+            }),
         Command::Demo { out } => demo(&out),
         Command::GenDataset {
             out,

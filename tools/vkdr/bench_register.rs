@@ -1,0 +1,290 @@
+//! `vkdr bench-register`: one registration at benchmark size (by default 30 iterations,
+//! 640 x 480, a canonical of about 1e4 vertices, pose noise): the wall time of the whole
+//! registration (median over repeats), the device time of each pass of an iteration, the
+//! throughput of registrations batched in one submission against one at a time, and the
+//! error after each iteration against cumulative time.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{bail, Context as _, Result};
+use glam::DVec3;
+
+use vkdr::dataset::{instance, Rng};
+use vkdr::eval::{self, mean_nearest, EvalSettings};
+use vkdr::gpu::Context;
+use vkdr::io::{write_atomically, write_png};
+use vkdr::plot::{Plot, PALETTE};
+use vkdr::raster::View;
+use vkdr::register::{Job, PassTimes, Registrar};
+use vkdr::shape::ShapeSpace;
+use vkdr::Camera;
+
+pub struct Args {
+    pub category: String,
+    pub subdivide: u32,
+    pub width: u32,
+    pub height: u32,
+    pub iterations: usize,
+    pub repeats: usize,
+    pub batch: usize,
+    pub seed: u64,
+    pub space: Option<PathBuf>,
+    pub out: PathBuf,
+}
+
+fn median(mut values: Vec<f64>) -> f64 {
+    values.sort_by(|a, b| a.total_cmp(b));
+    match values.len() {
+        0 => f64::NAN,
+        n if n % 2 == 1 => values[n / 2],
+        n => 0.5 * (values[n / 2 - 1] + values[n / 2]),
+    }
+}
+
+pub fn run(ctx: &Context, args: &Args) -> Result<()> {
+    let started = Instant::now();
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    let device = format!("{} ({})", ctx.info().name, ctx.info().driver_info);
+    println!("device: {device}");
+    if args.repeats == 0 || args.batch == 0 || args.iterations == 0 {
+        bail!("--repeats, --batch and --iterations must be at least 1");
+    }
+
+    // The category: a subdivided canonical, 10 training instances, one test instance.
+    let mut rng = Rng::new(args.seed);
+    let mut canonical = instance(&args.category, &mut rng)?;
+    for _ in 0..args.subdivide {
+        canonical = canonical.subdivided();
+    }
+    let training: Vec<(String, Vec<DVec3>)> = (0..10)
+        .map(|i| {
+            Ok((
+                format!("train_{i:02}"),
+                instance(&args.category, &mut rng)?.points(),
+            ))
+        })
+        .collect::<Result<_>>()?;
+    let test = instance(&args.category, &mut rng)?;
+    let settings = EvalSettings::default();
+    let space = match &args.space {
+        Some(path) => {
+            let space = ShapeSpace::load(path)?;
+            if space.canonical != canonical {
+                bail!(
+                    "{} was not built for --category {} --subdivide {} --seed {}",
+                    path.display(),
+                    args.category,
+                    args.subdivide,
+                    args.seed
+                );
+            }
+            space
+        }
+        None => {
+            let t = Instant::now();
+            let space = ShapeSpace::build(
+                ctx,
+                &args.category,
+                &canonical,
+                &training,
+                settings.dims,
+                &settings.cpd,
+                |done, total, _| eprint!("\r  shape space: CPD {done}/{total}"),
+            )?;
+            let path = args.out.join("space.npz");
+            space.save(&path)?;
+            eprintln!(
+                "\r  shape space of {} vertices built in {:.1} s -> {} (reuse it with --space)",
+                canonical.vertex_count(),
+                t.elapsed().as_secs_f64(),
+                path.display()
+            );
+            space
+        }
+    };
+    let truth = test.points();
+    let oracle = mean_nearest(
+        &truth,
+        &space.vertices(&space.oracle_code(ctx, &truth, &settings.cpd)?)?,
+    );
+
+    // The camera of the evaluation at twice the resolution, and one noisy start per batch
+    // slot.
+    let scale = args.width as f64 / settings.camera.width as f64;
+    let camera = Camera::new(
+        settings.camera.fx * scale,
+        settings.camera.fy * scale,
+        0.5 * args.width as f64,
+        0.5 * args.height as f64,
+        args.width,
+        args.height,
+    )?;
+    let pose = eval::view_pose(
+        rng.range(0.0, std::f64::consts::TAU),
+        rng.range(settings.elevation.0, settings.elevation.1),
+        settings.distance,
+    );
+    let registrar = Registrar::new(ctx)?;
+    let observed = eval::render_mask(ctx, &registrar, &test, View { camera, pose })?;
+    let jobs: Vec<Job> = (0..args.batch)
+        .map(|_| Job {
+            space: &space,
+            observed: &observed,
+            view: View {
+                camera,
+                pose: eval::noisy_pose(
+                    pose,
+                    &mut rng,
+                    settings.translation_noise,
+                    settings.rotation_noise,
+                ),
+            },
+        })
+        .collect();
+    let mut params = settings.pose_noise;
+    params.iterations = args.iterations;
+    params.check_every = args.iterations; // no plateau stop: every run does all iterations
+
+    // One registration, end to end (scene set-up included), after a warm-up.
+    registrar.register_batch(ctx, &jobs[..1], &params, |_, _| {})?;
+    let mut walls = Vec::new();
+    let mut runs = Vec::new();
+    for r in 0..args.repeats {
+        eprint!("\r  registration {}/{}", r + 1, args.repeats);
+        let t = Instant::now();
+        let result = registrar.register_batch(ctx, &jobs[..1], &params, |_, _| {})?;
+        walls.push(t.elapsed().as_secs_f64() * 1e3);
+        runs.extend(result);
+    }
+    eprintln!();
+    let wall = median(walls.clone());
+    let passes = registrar.profile(ctx, &jobs[0], &params, args.iterations)?;
+    let pass = |f: fn(&PassTimes) -> f64| median(passes.iter().map(f).collect());
+
+    // Throughput: the batch one at a time against in one submission per chunk.
+    let t = Instant::now();
+    for job in &jobs {
+        registrar.register_batch(ctx, std::slice::from_ref(job), &params, |_, _| {})?;
+    }
+    let sequential = t.elapsed().as_secs_f64() * 1e3;
+    let t = Instant::now();
+    let batched_results = registrar.register_batch(ctx, &jobs, &params, |_, _| {})?;
+    let batched = t.elapsed().as_secs_f64() * 1e3;
+
+    // Error after each iteration of the first run against cumulative time.
+    let run = &runs[0];
+    let per_iteration = wall / run.iterations as f64;
+    let mut curve = vec![(
+        0.0,
+        mean_nearest(&truth, &space.vertices(&vec![0.0; space.dims()])?),
+    )];
+    for (t, code) in run.codes.iter().enumerate() {
+        curve.push((
+            (t + 1) as f64 * per_iteration,
+            mean_nearest(&truth, &space.vertices(code)?),
+        ));
+    }
+    let batch_errors: Vec<f64> = batched_results
+        .iter()
+        .map(|r| mean_nearest(&truth, &r.vertices) / oracle)
+        .collect();
+
+    let m = space.canonical.vertex_count();
+    let summary = format!(
+        "# vkdr bench-register\n\nDevice: {device}.\n\
+         One registration of a {category} ({m} vertices, {faces} triangles, {dims}-dimensional space) from a {w}x{h} mask with pose noise \
+         (+-{tn} cm, +-{rn:.0} deg), {it} iterations (schedule of `vkdr eval`), seed {seed}.\n\n\
+         | measure | value |\n|---|---|\n\
+         | registration, wall (median of {reps}, set-up included) | {wall:.1} ms |\n\
+         | per iteration, wall | {per_iteration:.2} ms |\n\
+         | per iteration, device: deform | {deform:.3} ms |\n\
+         | per iteration, device: forward (raster, classify, antialias, loss) | {forward:.3} ms |\n\
+         | per iteration, device: backward (vertices, pose) | {backward:.3} ms |\n\
+         | per iteration, device: dL/ds and optimiser step | {update:.3} ms |\n\
+         | per iteration, device: total | {total:.3} ms |\n\
+         | {batch} registrations one at a time | {sequential:.1} ms ({seq_rate:.2} per s) |\n\
+         | {batch} registrations batched | {batched:.1} ms ({batch_rate:.2} per s, {speedup:.2}x) |\n\
+         | oracle error | {oracle:.2} mm |\n\
+         | error at the start (mean shape) / end | {start:.2} / {end:.2} mm ({ratio:.2}x oracle) |\n\
+         | batched runs' error / oracle | {batch_errors} |\n",
+        category = args.category,
+        faces = space.canonical.triangle_count(),
+        dims = space.dims(),
+        w = args.width,
+        h = args.height,
+        tn = 100.0 * settings.translation_noise,
+        rn = settings.rotation_noise.to_degrees(),
+        it = args.iterations,
+        seed = args.seed,
+        reps = args.repeats,
+        deform = pass(|p| p.deform),
+        forward = pass(|p| p.forward),
+        backward = pass(|p| p.backward),
+        update = pass(|p| p.update),
+        total = pass(|p| p.total),
+        batch = args.batch,
+        seq_rate = 1e3 * args.batch as f64 / sequential,
+        batch_rate = 1e3 * args.batch as f64 / batched,
+        speedup = sequential / batched,
+        oracle = 1e3 * oracle,
+        start = 1e3 * curve[0].1,
+        end = 1e3 * curve.last().map_or(f64::NAN, |c| c.1),
+        ratio = curve.last().map_or(f64::NAN, |c| c.1) / oracle,
+        batch_errors = batch_errors
+            .iter()
+            .map(|e| format!("{e:.2}"))
+            .collect::<Vec<_>>()
+            .join(", "),
+    );
+    print!("{summary}");
+    write_atomically(&args.out.join("bench_register.md"), summary.as_bytes())?;
+    let json = format!(
+        "{{\"device\": {device:?}, \"category\": {:?}, \"vertices\": {m}, \"width\": {}, \"height\": {}, \"iterations\": {}, \
+         \"wall_ms\": {walls:?}, \"wall_ms_median\": {wall:.3}, \
+         \"passes_ms\": {{\"deform\": {:.4}, \"forward\": {:.4}, \"backward\": {:.4}, \"update\": {:.4}, \"total\": {:.4}}}, \
+         \"batch\": {}, \"sequential_ms\": {sequential:.3}, \"batched_ms\": {batched:.3}, \"oracle_m\": {oracle:e}, \
+         \"curve\": [{}]}}\n",
+        args.category,
+        args.width,
+        args.height,
+        args.iterations,
+        pass(|p| p.deform),
+        pass(|p| p.forward),
+        pass(|p| p.backward),
+        pass(|p| p.update),
+        pass(|p| p.total),
+        args.batch,
+        curve
+            .iter()
+            .map(|(t, e)| format!("{{\"ms\": {t:.3}, \"error_m\": {e:e}}}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    write_atomically(&args.out.join("bench_register.json"), json.as_bytes())?;
+    let name = device.split(" (").next().unwrap_or(&device);
+    let plot = Plot::new(
+        &format!(
+            "registration {}x{}, {m} vertices, {name}",
+            args.width, args.height
+        ),
+        "cumulative time (ms)",
+        "error / oracle error",
+    )
+    .series(
+        "pose noise",
+        PALETTE[1],
+        curve.iter().map(|&(t, e)| (t, e / oracle)).collect(),
+    );
+    write_png(
+        &args.out.join("speed_vs_error.png"),
+        &image::DynamicImage::ImageRgb8(plot.render()),
+    )?;
+    println!(
+        "wrote {0}/bench_register.md, bench_register.json, speed_vs_error.png in {1:.1} s",
+        args.out.display(),
+        started.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
