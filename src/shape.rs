@@ -220,14 +220,32 @@ impl ShapeSpace {
             .collect())
     }
 
-    /// The latent code of coefficients W (flattened M x 3): U^T (W - mean).
-    pub fn code_of_coefficients(&self, w: &[f64]) -> Vec<f64> {
-        let centred: Vec<f64> = w.iter().zip(&self.mean).map(|(a, b)| a - b).collect();
-        self.basis.iter().map(|u| dot(u, &centred)).collect()
+    /// The latent code whose deformation `d0 + B s` is closest in least squares to the
+    /// displacement field `d` (flattened M x 3, in the data's units).
+    pub fn code_of_displacement(&self, d: &[f64]) -> Result<Vec<f64>> {
+        let k = self.dims();
+        let residual: Vec<f64> = d.iter().zip(&self.offset).map(|(a, b)| a - b).collect();
+        let mut normal = linalg::Matrix::zeros(k, k);
+        let mut rhs = linalg::Matrix::zeros(k, 1);
+        for (i, bi) in self.deformation_basis.iter().enumerate() {
+            for (j, bj) in self.deformation_basis.iter().enumerate() {
+                normal.set(i, j, dot(bi, bj));
+            }
+            rhs.set(i, 0, dot(bi, &residual));
+        }
+        // A tiny ridge keeps a dimension that barely moves any vertex solvable.
+        let trace: f64 = (0..k).map(|i| normal.at(i, i)).sum();
+        for i in 0..k {
+            let v = normal.at(i, i) + 1e-12 * trace.max(f64::MIN_POSITIVE);
+            normal.set(i, i, v);
+        }
+        Ok(linalg::solve(normal, rhs)?.data)
     }
 
-    /// The oracle: the latent code that best explains the 3D instance `points` (CPD of
-    /// the canonical onto it, projected on the space).
+    /// The oracle: the best the space can do when the 3D instance `points` is known.
+    /// CPD deforms the canonical onto it, and the code is the least-squares fit of the
+    /// space's deformation to CPD's over all vertices (measured where the error is, in
+    /// vertex positions, rather than as a projection of the coefficients W).
     pub fn oracle_code(
         &self,
         ctx: &Context,
@@ -237,13 +255,13 @@ impl ShapeSpace {
         let pipelines = CpdPipelines::new(ctx)?;
         let c = self.canonical.points();
         let result = cpd::register(ctx, &pipelines, &c, points, params, &mut |_, _| {})?;
-        Ok(self.code_of_coefficients(
-            &result
-                .w
-                .iter()
-                .flat_map(|w| w.to_array())
-                .collect::<Vec<_>>(),
-        ))
+        let displacement: Vec<f64> = result
+            .deformed
+            .iter()
+            .zip(&c)
+            .flat_map(|(t, y)| (*t - *y).to_array())
+            .collect();
+        self.code_of_displacement(&displacement)
     }
 
     /// Writes `path` (.npz) and `path.json`.
@@ -458,4 +476,63 @@ fn json_string(json: &str, key: &str) -> Option<String> {
         .trim_start()
         .strip_prefix('"')?;
     Some(rest[..rest.find('"')?].to_string())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::dataset::Rng;
+
+    fn random_space(rng: &mut Rng) -> ShapeSpace {
+        let canonical = Mesh::bottle(8);
+        let d = 3 * canonical.vertex_count();
+        let fits: Vec<TrainingFit> = (0..5)
+            .map(|_| TrainingFit {
+                w: (0..d).map(|_| rng.range(-1.0, 1.0)).collect(),
+                displacement: (0..d).map(|_| rng.range(-0.01, 0.01)).collect(),
+            })
+            .collect();
+        ShapeSpace::from_fits("test", &canonical, 0.1, &fits, 3, vec![]).unwrap()
+    }
+
+    #[test]
+    fn displacement_codes_are_least_squares_fits() {
+        let mut rng = Rng::new(1);
+        let space = random_space(&mut rng);
+        let m = space.canonical.vertex_count();
+        let residual = |code: &[f64], d: &[f64]| -> f64 {
+            let v = space.vertices(code).unwrap();
+            let c = space.canonical.points();
+            (0..m)
+                .map(|i| {
+                    let r = v[i] - c[i] - DVec3::new(d[3 * i], d[3 * i + 1], d[3 * i + 2]);
+                    r.length_squared()
+                })
+                .sum()
+        };
+        // A field inside the space gives its own code back.
+        let code = vec![0.3, -1.2, 0.7];
+        let inside: Vec<f64> = space
+            .vertices(&code)
+            .unwrap()
+            .iter()
+            .zip(space.canonical.points())
+            .flat_map(|(v, c)| (*v - c).to_array())
+            .collect();
+        let fitted = space.code_of_displacement(&inside).unwrap();
+        for (a, b) in fitted.iter().zip(&code) {
+            assert!((a - b).abs() < 1e-9, "{fitted:?} vs {code:?}");
+        }
+        // Any other field: every nearby code fits worse.
+        let outside: Vec<f64> = (0..3 * m).map(|_| rng.range(-0.02, 0.02)).collect();
+        let best = space.code_of_displacement(&outside).unwrap();
+        let at_best = residual(&best, &outside);
+        for j in 0..3 {
+            for step in [-1e-3, 1e-3] {
+                let mut other = best.clone();
+                other[j] += step;
+                assert!(residual(&other, &outside) > at_best, "dimension {j} {step}");
+            }
+        }
+    }
 }
