@@ -11,7 +11,7 @@ use anyhow::{bail, Context as _, Result};
 use glam::DVec3;
 
 use vkdr::dataset::{instance, Rng};
-use vkdr::eval::{self, mean_nearest, EvalSettings};
+use vkdr::eval::{self, surface_error, EvalSettings};
 use vkdr::gpu::Context;
 use vkdr::io::{write_atomically, write_png};
 use vkdr::plot::{Plot, PALETTE};
@@ -104,10 +104,12 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
             space
         }
     };
-    let truth = test.points();
-    let oracle = mean_nearest(
+    let truth = eval::surface_sample(&test, eval::SAMPLE_POINTS, args.seed);
+    let triangles = space.canonical.triangles();
+    let oracle = surface_error(
         &truth,
-        &space.vertices(&space.oracle_code(ctx, &truth, &settings.cpd)?)?,
+        &space.vertices(&space.oracle_code(ctx, &test.points(), &settings.cpd)?)?,
+        triangles,
     );
 
     // The camera of the evaluation at twice the resolution, and one noisy start per batch
@@ -178,17 +180,21 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
     let per_iteration = wall / run.iterations as f64;
     let mut curve = vec![(
         0.0,
-        mean_nearest(&truth, &space.vertices(&vec![0.0; space.dims()])?),
+        surface_error(
+            &truth,
+            &space.vertices(&vec![0.0; space.dims()])?,
+            triangles,
+        ),
     )];
     for (t, code) in run.codes.iter().enumerate() {
         curve.push((
             (t + 1) as f64 * per_iteration,
-            mean_nearest(&truth, &space.vertices(code)?),
+            surface_error(&truth, &space.vertices(code)?, triangles),
         ));
     }
     let batch_errors: Vec<f64> = batched_results
         .iter()
-        .map(|r| mean_nearest(&truth, &r.vertices) / oracle)
+        .map(|r| surface_error(&truth, &r.vertices, triangles) / oracle)
         .collect();
 
     let m = space.canonical.vertex_count();

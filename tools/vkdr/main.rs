@@ -155,6 +155,18 @@ enum Command {
         /// Iterations with pose noise (the pose is updated once per three).
         #[arg(long, default_value_t = 30)]
         noise_iterations: usize,
+        /// Iterations with the pose known.
+        #[arg(long, default_value_t = 30)]
+        known_iterations: usize,
+        /// Loss of both conditions: mse | iou | distance (default: each condition's own).
+        #[arg(long)]
+        loss: Option<String>,
+        /// Length of the first latent step, in training standard deviations.
+        #[arg(long, default_value_t = 0.5)]
+        latent_step: f64,
+        /// Adam instead of SGD with momentum.
+        #[arg(long)]
+        adam: bool,
         /// First pose steps with pose noise: translation (m) and rotation (rad).
         #[arg(long, default_value_t = 0.01)]
         translation_step: f64,
@@ -318,6 +330,10 @@ fn main() {
             seed,
             categories,
             noise_iterations,
+            known_iterations,
+            loss,
+            latent_step,
+            adam,
             translation_step,
             rotation_step,
             pose_every,
@@ -330,11 +346,20 @@ fn main() {
                 ..Default::default()
             };
             settings.pose_noise.iterations = noise_iterations;
+            settings.known_pose.iterations = known_iterations;
             settings.pose_noise.translation_step = translation_step;
             settings.pose_noise.rotation_step = rotation_step;
             settings.pose_noise.pose_every = pose_every;
             settings.pose_noise.pose_first = pose_first;
-            eval(&dataset, settings, categories.as_deref(), &out)
+            let loss = loss.map(|l| l.parse::<vkdr::loss::Loss>()).transpose();
+            loss.map_err(anyhow::Error::from).and_then(|loss| {
+                for params in [&mut settings.known_pose, &mut settings.pose_noise] {
+                    params.latent_step = latent_step;
+                    params.adam = adam;
+                    params.loss = loss.unwrap_or(params.loss);
+                }
+                eval(&dataset, settings, categories.as_deref(), &out)
+            })
         }
         Command::ShapeSpace {
             category_dir,
@@ -767,7 +792,11 @@ fn demo(out: &Path) -> Result<()> {
     println!(
         "4. registered with pose noise in {:.0} ms: error {:.2} mm; pictures {2}/overlay_start.png, {2}/overlay_end.png (observed blue, rendered red)",
         result.milliseconds,
-        1e3 * vkdr::eval::mean_nearest(&test.points(), &result.vertices),
+        1e3 * vkdr::eval::surface_error(
+            &vkdr::eval::surface_sample(&test, vkdr::eval::SAMPLE_POINTS, 0),
+            &result.vertices,
+            space.canonical.triangles()
+        ),
         register_out.display()
     );
     let render_out = out.join("render");
