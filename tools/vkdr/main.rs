@@ -168,15 +168,15 @@ enum Command {
         #[arg(long)]
         adam: bool,
         /// First pose steps with pose noise: translation (m) and rotation (rad).
-        #[arg(long, default_value_t = 0.01)]
+        #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.translation_step)]
         translation_step: f64,
-        #[arg(long, default_value_t = 0.05)]
+        #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.rotation_step)]
         rotation_step: f64,
         /// With pose noise: update the pose once every this many iterations...
-        #[arg(long, default_value_t = 1)]
+        #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.pose_every)]
         pose_every: usize,
         /// ...after this many iterations that move the pose alone.
-        #[arg(long, default_value_t = 15)]
+        #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.pose_first)]
         pose_first: usize,
         #[arg(long)]
         out: PathBuf,
@@ -244,7 +244,8 @@ struct RegisterArgs {
     /// The camera and the initial pose.
     #[command(flatten)]
     view: ViewArgs,
-    /// Optimise the pose too (once per three shape updates; z stays fixed).
+    /// Optimise the pose too (the schedule of `vkdr eval`: the pose alone for 15
+    /// iterations, then pose and shape; z stays fixed). Use --loss distance with it.
     #[arg(long)]
     optimize_pose: bool,
     #[arg(long, default_value_t = 30)]
@@ -637,12 +638,17 @@ fn register(args: &RegisterArgs) -> Result<()> {
         }
         (None, None) => anyhow::bail!("give --observed MASK.png or --observed-mesh TEST.obj"),
     };
+    // With the pose: the schedule of `vkdr eval` (pose alone first, then both).
+    let base = if args.optimize_pose {
+        vkdr::eval::EvalSettings::default().pose_noise
+    } else {
+        vkdr::register::RegisterParams::default()
+    };
     let params = vkdr::register::RegisterParams {
         iterations: args.iterations,
-        pose_every: if args.optimize_pose { 3 } else { 0 },
         loss: args.loss.parse()?,
         adam: args.adam,
-        ..Default::default()
+        ..base
     };
     let result = eval_cmd::register(&ctx, &space, &observed, view, &params, &args.out)?;
     println!(
