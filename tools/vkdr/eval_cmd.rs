@@ -206,12 +206,13 @@ pub fn write_reports(
     let mut md = format!(
         "# Registration error (Table 1)\n\nDevice: {device}. Camera: fx {} fy {} cx {} cy {}, {}x{} px; object at {} m; views from the upper hemisphere \
          (elevation {:.0}-{:.0} deg) at random azimuth; {} trials per instance (seed {}). Pose noise: uniform +-{} cm in x and y, +-{:.0} deg about each axis. \
-         Error: mean distance (mm) from each vertex of the test instance to the nearest vertex of the deformed canonical mesh; \
-         ratio = error / oracle error; chamfer = symmetric chamfer distance (mm).\n\n\
+         Error: mean distance (mm) from {} points sampled uniformly on the test surface to the deformed canonical's surface; \
+         oracle: least-squares latent fit to CPD of the canonical onto the true instance; \
+         ratio = error / oracle error; chamfer = symmetric chamfer distance of the vertex sets (mm).\n\n\
          | category | instance | oracle | known pose | ratio | pose noise | ratio | worst noise trial | chamfer oracle / known / noise | iterations | ms |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
         c.fx, c.fy, c.cx, c.cy, c.width, c.height, settings.distance,
         settings.elevation.0.to_degrees(), settings.elevation.1.to_degrees(), settings.trials, settings.seed,
-        100.0 * settings.translation_noise, settings.rotation_noise.to_degrees()
+        100.0 * settings.translation_noise, settings.rotation_noise.to_degrees(), eval::SAMPLE_POINTS
     );
     let mut csv = String::from("category,instance,oracle,known_pose_mean,known_pose_std,pose_noise_mean,pose_noise_std,iterations,ms,oracle_chamfer,known_pose_chamfer,pose_noise_chamfer\n");
     let mut json = Vec::new();
