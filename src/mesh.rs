@@ -234,24 +234,9 @@ impl Mesh {
             }
         }
         positions.push([0.0, radius, 0.0]);
-        let top = positions.len() as u32 - 1;
-        let ring = |r: u32, s: u32| 1 + (r - 1) * segments + s % segments;
-        let mut triangles = Vec::new();
-        for s in 0..segments {
-            triangles.push([0, ring(1, s), ring(1, s + 1)]);
-            triangles.push([top, ring(rings - 1, s + 1), ring(rings - 1, s)]);
-        }
-        for r in 1..rings - 1 {
-            for s in 0..segments {
-                let (a, b) = (ring(r, s), ring(r, s + 1));
-                let (c, d) = (ring(r + 1, s), ring(r + 1, s + 1));
-                triangles.push([a, c, d]);
-                triangles.push([a, d, b]);
-            }
-        }
         Self {
             positions,
-            triangles,
+            triangles: capped_rings(rings - 1, segments),
         }
     }
 
@@ -282,22 +267,7 @@ impl Mesh {
             }
         }
         positions.push([0.0, profile[profile.len() - 1].1, 0.0]);
-        let top = positions.len() as u32 - 1;
-        let ring = |r: u32, s: u32| 1 + r * segments + s % segments;
-        let mut triangles = Vec::new();
-        for s in 0..segments {
-            triangles.push([0, ring(0, s), ring(0, s + 1)]);
-            triangles.push([top, ring(rings - 1, s + 1), ring(rings - 1, s)]);
-        }
-        for r in 0..rings - 1 {
-            for s in 0..segments {
-                let (a, b) = (ring(r, s), ring(r, s + 1));
-                let (c, d) = (ring(r + 1, s), ring(r + 1, s + 1));
-                triangles.push([a, c, d]);
-                triangles.push([a, d, b]);
-            }
-        }
-        Self::new(positions, triangles)
+        Self::new(positions, capped_rings(rings, segments))
     }
 
     /// A bottle of about 0.25 m height (for demos and tests), centred at the origin.
@@ -339,6 +309,29 @@ impl Mesh {
             triangles,
         }
     }
+}
+
+/// Triangles of a closed surface of `rings` rings of `segments` vertices each, stacked
+/// bottom to top between two poles: vertex 0 is the bottom pole, then the rings, then the
+/// top pole. Outward counter-clockwise faces when the rings run counter-clockwise seen
+/// from below (as `uv_sphere` and `lathe` lay them out).
+fn capped_rings(rings: u32, segments: u32) -> Vec<[u32; 3]> {
+    let top = 1 + rings * segments;
+    let ring = |r: u32, s: u32| 1 + r * segments + s % segments;
+    let mut triangles = Vec::new();
+    for s in 0..segments {
+        triangles.push([0, ring(0, s), ring(0, s + 1)]);
+        triangles.push([top, ring(rings - 1, s + 1), ring(rings - 1, s)]);
+    }
+    for r in 0..rings - 1 {
+        for s in 0..segments {
+            let (a, b) = (ring(r, s), ring(r, s + 1));
+            let (c, d) = (ring(r + 1, s), ring(r + 1, s + 1));
+            triangles.push([a, c, d]);
+            triangles.push([a, d, b]);
+        }
+    }
+    triangles
 }
 
 #[cfg(test)]
