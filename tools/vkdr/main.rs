@@ -16,6 +16,7 @@ use clap::{Parser, Subcommand};
 use ndarray::s;
 
 use vkdr::camera::{parse_numbers, parse_size};
+use vkdr::cpd::CpdParams;
 use vkdr::gpu::Context;
 use vkdr::io::{write_npy, write_png};
 use vkdr::raster::{Outputs, Rasterizer, View};
@@ -90,17 +91,8 @@ enum Command {
     Cpd {
         source: PathBuf,
         target: PathBuf,
-        /// Kernel width, in units of the source's RMS radius.
-        #[arg(long, default_value_t = 2.0)]
-        beta: f64,
-        /// Smoothness weight.
-        #[arg(long = "lambda", default_value_t = 2.0)]
-        lambda: f64,
-        /// Outlier weight, in (0, 1).
-        #[arg(long, default_value_t = 0.1)]
-        w: f64,
-        #[arg(long, default_value_t = 150)]
-        max_iterations: usize,
+        #[command(flatten)]
+        cpd: CpdArgs,
         /// Output directory for deformed.npy, W.npy and log.json.
         #[arg(long)]
         out: PathBuf,
@@ -128,12 +120,8 @@ enum Command {
         canonical: Option<String>,
         #[arg(long, default_value_t = 5)]
         dims: usize,
-        #[arg(long, default_value_t = 2.0)]
-        beta: f64,
-        #[arg(long = "lambda", default_value_t = 2.0)]
-        lambda: f64,
-        #[arg(long, default_value_t = 0.1)]
-        w: f64,
+        #[command(flatten)]
+        cpd: CpdArgs,
         /// Output .npz (a .npz.json description is written beside it).
         #[arg(long)]
         out: PathBuf,
@@ -188,6 +176,34 @@ enum Command {
         #[arg(long, default_value = "vkdr-demo")]
         out: PathBuf,
     },
+}
+
+/// The CPD flags shared by cpd and shape-space.
+#[derive(clap::Args)]
+struct CpdArgs {
+    /// Kernel width, in units of the source's RMS radius.
+    #[arg(long, default_value_t = CpdParams::default().beta)]
+    beta: f64,
+    /// Smoothness weight.
+    #[arg(long = "lambda", default_value_t = CpdParams::default().lambda)]
+    lambda: f64,
+    /// Outlier weight, in (0, 1).
+    #[arg(long, default_value_t = CpdParams::default().w)]
+    w: f64,
+    #[arg(long, default_value_t = CpdParams::default().max_iterations)]
+    max_iterations: usize,
+}
+
+impl CpdArgs {
+    fn params(&self) -> CpdParams {
+        CpdParams {
+            beta: self.beta,
+            lambda: self.lambda,
+            w: self.w,
+            max_iterations: self.max_iterations,
+            ..Default::default()
+        }
+    }
 }
 
 /// The camera and pose flags shared by render, grad and register.
@@ -366,36 +382,16 @@ fn main() {
             category_dir,
             canonical,
             dims,
-            beta,
-            lambda,
-            w,
+            cpd,
             out,
-        } => {
-            let params = vkdr::cpd::CpdParams {
-                beta,
-                lambda,
-                w,
-                ..Default::default()
-            };
-            shape_cmd::run(&category_dir, canonical.as_deref(), dims, &params, &out)
-        }
+        } => shape_cmd::run(&category_dir, canonical.as_deref(), dims, &cpd.params(), &out),
         Command::Cpd {
             source,
             target,
-            beta,
-            lambda,
-            w,
-            max_iterations,
+            cpd,
             out,
         } => {
-            let params = vkdr::cpd::CpdParams {
-                beta,
-                lambda,
-                w,
-                max_iterations,
-                ..Default::default()
-            };
-            cpd_cmd::run(&source, &target, &params, &out).map(|r| {
+            cpd_cmd::run(&source, &target, &cpd.params(), &out).map(|r| {
                 println!(
                     "{} iterations ({}) in {:.3} s; final sigma^2 {:.3e}; wrote {4}/deformed.npy, {4}/W.npy, {4}/log.json",
                     r.iterations,
@@ -721,13 +717,7 @@ fn demo(out: &Path) -> Result<()> {
     // 2. The bottle's shape space from its training instances.
     let category = dataset.join("bottle");
     let space_path = out.join("bottle_space.npz");
-    shape_cmd::run(
-        &category,
-        None,
-        5,
-        &vkdr::cpd::CpdParams::default(),
-        &space_path,
-    )?;
+    shape_cmd::run(&category, None, 5, &CpdParams::default(), &space_path)?;
     let space = vkdr::shape::ShapeSpace::load(&space_path)?;
     println!(
         "2. built the bottle shape space ({} dimensions) -> {}",
