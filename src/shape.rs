@@ -77,12 +77,7 @@ impl ShapeSpace {
             let result = cpd::register(ctx, &pipelines, &c, points, params, &mut |_, _| {})?;
             fits.push(TrainingFit {
                 w: result.w.iter().flat_map(|w| w.to_array()).collect(),
-                displacement: result
-                    .deformed
-                    .iter()
-                    .zip(&c)
-                    .flat_map(|(t, y)| (*t - *y).to_array())
-                    .collect(),
+                displacement: displacement(&result, &c),
             });
         }
         progress(training.len(), training.len(), "");
@@ -255,13 +250,7 @@ impl ShapeSpace {
         let pipelines = CpdPipelines::new(ctx)?;
         let c = self.canonical.points();
         let result = cpd::register(ctx, &pipelines, &c, points, params, &mut |_, _| {})?;
-        let displacement: Vec<f64> = result
-            .deformed
-            .iter()
-            .zip(&c)
-            .flat_map(|(t, y)| (*t - *y).to_array())
-            .collect();
-        self.code_of_displacement(&displacement)
+        self.code_of_displacement(&displacement(&result, &c))
     }
 
     /// Writes `path` (.npz) and `path.json`.
@@ -443,6 +432,15 @@ impl ShapeSpace {
             training_names: Vec::new(),
         })
     }
+}
+
+/// What a CPD fit moved each source point by, flattened M x 3.
+fn displacement(fit: &cpd::CpdResult, source: &[DVec3]) -> Vec<f64> {
+    fit.deformed
+        .iter()
+        .zip(source)
+        .flat_map(|(t, y)| (*t - *y).to_array())
+        .collect()
 }
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {

@@ -40,7 +40,8 @@ pub fn sphere(vertices: usize) -> Mesh {
     Mesh::uv_sphere(0.1, rings, segments)
 }
 
-fn median(mut values: Vec<f64>) -> f64 {
+/// The median (NaN for no values).
+pub fn median(mut values: Vec<f64>) -> f64 {
     values.sort_by(|a, b| a.total_cmp(b));
     let n = values.len();
     if n == 0 {

@@ -20,6 +20,8 @@ use vkdr::register::{Job, PassTimes, Registrar};
 use vkdr::shape::ShapeSpace;
 use vkdr::Camera;
 
+use crate::bench::median;
+
 pub struct Args {
     pub category: String,
     pub subdivide: u32,
@@ -31,15 +33,6 @@ pub struct Args {
     pub seed: u64,
     pub space: Option<PathBuf>,
     pub out: PathBuf,
-}
-
-fn median(mut values: Vec<f64>) -> f64 {
-    values.sort_by(|a, b| a.total_cmp(b));
-    match values.len() {
-        0 => f64::NAN,
-        n if n % 2 == 1 => values[n / 2],
-        n => 0.5 * (values[n / 2 - 1] + values[n / 2]),
-    }
 }
 
 pub fn run(ctx: &Context, args: &Args) -> Result<()> {
@@ -163,7 +156,14 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
     eprintln!();
     let wall = median(walls.clone());
     let passes = registrar.profile(ctx, &jobs[0], &params, args.iterations)?;
-    let pass = |f: fn(&PassTimes) -> f64| median(passes.iter().map(f).collect());
+    let median_of = |f: fn(&PassTimes) -> f64| median(passes.iter().map(f).collect());
+    let pass = PassTimes {
+        deform: median_of(|p| p.deform),
+        forward: median_of(|p| p.forward),
+        backward: median_of(|p| p.backward),
+        update: median_of(|p| p.update),
+        total: median_of(|p| p.total),
+    };
 
     // Throughput: the batch one at a time against in one submission per chunk.
     let t = Instant::now();
@@ -225,11 +225,11 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
         it = args.iterations,
         seed = args.seed,
         reps = args.repeats,
-        deform = pass(|p| p.deform),
-        forward = pass(|p| p.forward),
-        backward = pass(|p| p.backward),
-        update = pass(|p| p.update),
-        total = pass(|p| p.total),
+        deform = pass.deform,
+        forward = pass.forward,
+        backward = pass.backward,
+        update = pass.update,
+        total = pass.total,
         batch = args.batch,
         seq_rate = 1e3 * args.batch as f64 / sequential,
         batch_rate = 1e3 * args.batch as f64 / batched,
@@ -256,11 +256,11 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
         args.width,
         args.height,
         args.iterations,
-        pass(|p| p.deform),
-        pass(|p| p.forward),
-        pass(|p| p.backward),
-        pass(|p| p.update),
-        pass(|p| p.total),
+        pass.deform,
+        pass.forward,
+        pass.backward,
+        pass.update,
+        pass.total,
         args.batch,
         curve
             .iter()
