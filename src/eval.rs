@@ -22,7 +22,7 @@ use crate::gpu::Context;
 use crate::loss::Loss;
 use crate::mesh::Mesh;
 use crate::raster::{Outputs, View};
-use crate::register::{RegisterParams, Registrar};
+use crate::register::{Optimizer, RegisterParams, Registrar};
 use crate::shape::ShapeSpace;
 
 /// Mean over `a` of the distance to the nearest point of `b`.
@@ -162,17 +162,19 @@ impl Default for EvalSettings {
             rotation_noise: 15f64.to_radians(),
             known_pose: RegisterParams {
                 iterations: 30,
+                optimizer: Optimizer::Bfgs,
                 ..RegisterParams::default()
             },
-            // Chosen on a validation dataset (another seed): the pose alone for 15
-            // iterations, then pose and shape together every iteration.
+            // Chosen on a validation dataset (another seed): the pose alone aligned first
+            // with the distance loss, then pose and shape together.
             pose_noise: RegisterParams {
-                iterations: 30,
+                iterations: 60,
                 pose_every: 1,
-                pose_first: 15,
+                align: 15,
+                align_loss: Loss::Distance,
                 translation_step: 0.01,
                 rotation_step: 0.05,
-                loss: Loss::Distance,
+                optimizer: Optimizer::Bfgs,
                 ..RegisterParams::default()
             },
             dims: 5,
@@ -285,8 +287,8 @@ pub fn evaluate_instance(
     let mut rng = Rng::new(settings.seed ^ hash(name));
     let (mut known, mut known_ch, mut noisy, mut noisy_ch, mut iterations, mut ms) =
         (vec![], vec![], vec![], vec![], vec![], vec![]);
-    let mut curve_known = vec![0.0; settings.known_pose.iterations];
-    let mut curve_noise = vec![0.0; settings.pose_noise.iterations];
+    let mut curve_known = vec![0.0; settings.known_pose.total_iterations()];
+    let mut curve_noise = vec![0.0; settings.pose_noise.total_iterations()];
     let mut ms_per_iteration = Vec::new();
     for trial in 0..settings.trials {
         progress(trial, settings.trials);

@@ -11,6 +11,7 @@ use std::time::Instant;
 use bytemuck::{Pod, Zeroable};
 use glam::{DMat3, DVec3};
 
+use crate::cpd::linalg::{self, Matrix};
 use crate::diff::{DiffRenderer, Scene, SceneDesc};
 use crate::error::{Error, Result};
 use crate::gpu::{
@@ -25,6 +26,44 @@ const DEFORM: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/deform.comp.spv"
 const LATENT_GRADIENT: &[u8] =
     include_bytes!(concat!(env!("OUT_DIR"), "/latent_gradient.comp.spv"));
 const OPTIMIZER: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/optimizer.comp.spv"));
+const BFGS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/bfgs.comp.spv"));
+
+/// How the latent code (and the pose) are updated.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Optimizer {
+    /// SGD with momentum and learning-rate decay (the paper's); with pose optimisation the
+    /// pose takes its own SGD steps once every `pose_every` iterations.
+    Sgd,
+    /// Adam for the latent code (the pose as with SGD).
+    Adam,
+    /// Quasi-Newton (BFGS with a halving backtrack) over the code and the pose together;
+    /// momentum, decay and `pose_every` do not apply.
+    Bfgs,
+}
+
+impl Optimizer {
+    pub fn parse(name: &str) -> Result<Self> {
+        match name {
+            "sgd" => Ok(Self::Sgd),
+            "adam" => Ok(Self::Adam),
+            "bfgs" => Ok(Self::Bfgs),
+            other => Err(Error::InvalidInput(format!(
+                "unknown optimizer {other:?} (sgd, adam or bfgs)"
+            ))),
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Sgd => "sgd",
+            Self::Adam => "adam",
+            Self::Bfgs => "bfgs",
+        }
+    }
+}
+
+/// The quasi-Newton shader's state size limit (glsl/bfgs.comp MAX_N): code and pose.
+const BFGS_MAX_DIMS: usize = 64 - 6;
 
 /// How to register.
 #[derive(Clone, Copy, Debug)]
@@ -38,20 +77,29 @@ pub struct RegisterParams {
     pub latent_step: f64,
     /// Update the pose once every this many iterations (0: the pose stays fixed).
     pub pose_every: usize,
-    /// With pose optimisation: iterations at the start that move the pose alone (the
-    /// shape would otherwise bend to explain a misaligned silhouette).
-    pub pose_first: usize,
+    /// With pose optimisation: iterations before `iterations` that align the pose alone
+    /// with `align_loss` (the shape would otherwise bend to explain a misaligned
+    /// silhouette, and a distance loss reaches further than a mask loss).
+    pub align: usize,
+    pub align_loss: Loss,
     /// Let the z translation move too (ill-posed with shape from one view).
     pub optimize_z: bool,
     /// First translation and rotation steps of the pose (metres, radians).
     pub translation_step: f64,
     pub rotation_step: f64,
-    pub adam: bool,
+    pub optimizer: Optimizer,
     pub loss: Loss,
     /// Read the loss back every this many iterations; stop when it improved by less than
     /// `plateau` (relative) over the last chunk.
     pub check_every: usize,
     pub plateau: f64,
+}
+
+impl RegisterParams {
+    /// Iterations at most, the pose alignment's included.
+    pub fn total_iterations(&self) -> usize {
+        self.iterations + if self.pose_every > 0 { self.align } else { 0 }
+    }
 }
 
 impl Default for RegisterParams {
@@ -62,11 +110,12 @@ impl Default for RegisterParams {
             decay: 0.95,
             latent_step: 0.5,
             pose_every: 0,
-            pose_first: 0,
+            align: 0,
+            align_loss: Loss::Distance,
             optimize_z: false,
             translation_step: 0.004,
             rotation_step: 0.02,
-            adam: false,
+            optimizer: Optimizer::Sgd,
             loss: Loss::Mse,
             check_every: 10,
             plateau: 1e-4,
@@ -98,7 +147,7 @@ struct OptimizerConstants {
     shape_after: u32,
 }
 
-/// Offsets of the optimiser state (mirrors `glsl/optimizer.comp`).
+/// Offsets of the optimiser state (mirrors `glsl/optimizer.comp` and `glsl/bfgs.comp`).
 struct State;
 impl State {
     const LATENT: usize = 8;
@@ -108,26 +157,39 @@ impl State {
     fn codes(dims: usize, iterations: usize) -> usize {
         Self::losses(dims) + iterations
     }
-    fn len(dims: usize, iterations: usize) -> usize {
+    /// The quasi-Newton region: accepted loss, halvings, R0 (9), t0 (3), the pose part of
+    /// x (6), the accepted x (dims + 6), its gradient (dims + 6), H ((dims + 6)^2).
+    fn quasi_newton(dims: usize, iterations: usize) -> usize {
         Self::codes(dims, iterations) + iterations * dims
+    }
+    fn r0(dims: usize, iterations: usize) -> usize {
+        Self::quasi_newton(dims, iterations) + 2
+    }
+    fn accepted(dims: usize, iterations: usize) -> usize {
+        Self::quasi_newton(dims, iterations) + 20
+    }
+    fn len(dims: usize, iterations: usize) -> usize {
+        let n = dims + 6;
+        Self::accepted(dims, iterations) + 2 * n + n * n
     }
 }
 
 impl OptimizerConstants {
-    fn new(dims: usize, params: &RegisterParams) -> Self {
+    /// With `pose_only`, the latent code stays where it is.
+    fn new(dims: usize, params: &RegisterParams, pose_only: bool) -> Self {
         Self {
             dims: dims as u32,
             pose_every: params.pose_every as u32,
             optimize_z: params.optimize_z as u32,
-            adam: params.adam as u32,
+            adam: (params.optimizer == Optimizer::Adam) as u32,
             momentum: params.momentum as f32,
             decay: params.decay as f32,
             latent_step: params.latent_step as f32,
             translation_step: params.translation_step as f32,
             rotation_step: params.rotation_step as f32,
             max_iterations: params.iterations as u32,
-            shape_after: if params.pose_every > 0 {
-                params.pose_first.min(params.iterations) as u32
+            shape_after: if pose_only {
+                params.iterations as u32
             } else {
                 0
             },
@@ -141,6 +203,7 @@ pub struct Registrar {
     deform: ComputePipeline,
     latent_gradient: ComputePipeline,
     optimizer: ComputePipeline,
+    bfgs: ComputePipeline,
 }
 
 /// What a registration found.
@@ -172,6 +235,7 @@ impl Registrar {
                 8,
             )?,
             optimizer: ComputePipeline::new(ctx, "optimizer", &spirv(OPTIMIZER)?, &[b; 5], 44)?,
+            bfgs: ComputePipeline::new(ctx, "bfgs", &spirv(BFGS)?, &[b; 5], 44)?,
         })
     }
 
@@ -202,9 +266,10 @@ impl Registrar {
 
     /// Runs several independent registrations together: each chunk of iterations of all
     /// of them goes in one submission, and a registration that reached its plateau drops
-    /// out of the next chunks. `on_chunk` sees the most iterations done by any job and
-    /// the mean of the latest losses. Each result's `milliseconds` is the batch's wall time
-    /// until it finished.
+    /// out of the next chunks. With pose optimisation and `params.align`, every job's pose
+    /// is first aligned alone. `on_chunk` sees the most iterations done by any job and the
+    /// mean of the latest losses. Each result's `milliseconds` is the batch's wall time
+    /// until it finished; its losses and codes start with the alignment's.
     pub fn register_batch(
         &self,
         ctx: &Context,
@@ -218,6 +283,60 @@ impl Registrar {
                 "registration needs at least one iteration".into(),
             ));
         }
+        if params.pose_every == 0 || params.align == 0 {
+            return self.run(ctx, jobs, params, false, started, 0, &mut on_chunk);
+        }
+        let align = RegisterParams {
+            iterations: params.align,
+            loss: params.align_loss,
+            ..*params
+        };
+        let aligned = self.run(ctx, jobs, &align, true, started, 0, &mut on_chunk)?;
+        let jobs: Vec<Job> = jobs
+            .iter()
+            .zip(&aligned)
+            .map(|(job, a)| Job {
+                view: View {
+                    pose: a.pose,
+                    ..job.view
+                },
+                ..*job
+            })
+            .collect();
+        let refined = self.run(
+            ctx,
+            &jobs,
+            params,
+            false,
+            started,
+            params.align,
+            &mut on_chunk,
+        )?;
+        Ok(aligned
+            .into_iter()
+            .zip(refined)
+            .map(|(a, mut r)| {
+                r.losses.splice(0..0, a.losses);
+                r.codes.splice(0..0, a.codes);
+                r.iterations += a.iterations;
+                r
+            })
+            .collect())
+    }
+
+    /// One stage of `register_batch` (`pose_only`: the latent code stays at the mean);
+    /// `on_chunk` counts iterations from `first`.
+    #[allow(clippy::too_many_arguments)]
+    fn run(
+        &self,
+        ctx: &Context,
+        jobs: &[Job],
+        params: &RegisterParams,
+        pose_only: bool,
+        started: Instant,
+        first: usize,
+        on_chunk: &mut impl FnMut(usize, f64),
+    ) -> Result<Vec<Registration>> {
         if jobs.is_empty() {
             return Ok(Vec::new());
         }
@@ -249,7 +368,7 @@ impl Registrar {
                 let mut rec = Recorder::new(ctx)?;
                 for _ in 0..n {
                     for &i in &active {
-                        self.record_iteration(&mut rec, &tasks[i], params, None)?;
+                        self.record_iteration(&mut rec, &tasks[i], params, pose_only, None)?;
                     }
                 }
                 cached = Some((active.clone(), n, rec.finish()?));
@@ -267,7 +386,7 @@ impl Registrar {
                 }
             }
             let most = tasks.iter().map(|t| t.done).max().unwrap_or(0);
-            on_chunk(most, latest);
+            on_chunk(first + most, latest);
         }
         tasks.iter().map(|task| task.result(params)).collect()
     }
@@ -290,7 +409,7 @@ impl Registrar {
         let mut times = Vec::new();
         for _ in 0..repeats.min(params.iterations) {
             let mut rec = Recorder::new(ctx)?;
-            self.record_iteration(&mut rec, &task, params, Some((&outer, &inner)))?;
+            self.record_iteration(&mut rec, &task, params, false, Some((&outer, &inner)))?;
             ctx.submit_and_wait(rec)?;
             let (o, i) = (outer.read_ms()?, inner.read_ms()?);
             times.push(PassTimes {
@@ -312,6 +431,7 @@ impl Registrar {
         rec: &mut Recorder,
         task: &Task,
         params: &RegisterParams,
+        pose_only: bool,
         timing: Option<(&Timestamps, &Timestamps)>,
     ) -> Result<()> {
         let (m, k) = (task.m, task.k);
@@ -359,9 +479,13 @@ impl Registrar {
         rec.compute_constants(&self.latent_gradient, &[m as u32, k as u32]);
         rec.dispatch(1, 1, k as u32);
         rec.memory_barrier();
-        rec.bind_compute(&self.optimizer);
+        let optimizer = match params.optimizer {
+            Optimizer::Sgd | Optimizer::Adam => &self.optimizer,
+            Optimizer::Bfgs => &self.bfgs,
+        };
+        rec.bind_compute(optimizer);
         rec.push_compute_bindings(
-            &self.optimizer,
+            optimizer,
             &[
                 Binding::buffer(&task.state),
                 Binding::buffer(&task.grad_latent),
@@ -370,7 +494,7 @@ impl Registrar {
                 Binding::buffer(scene.views().views()),
             ],
         );
-        rec.compute_constants(&self.optimizer, &OptimizerConstants::new(k, params));
+        rec.compute_constants(optimizer, &OptimizerConstants::new(k, params, pose_only));
         rec.dispatch(1, 1, 1);
         rec.memory_barrier();
         if let Some((outer, _)) = timing {
@@ -407,8 +531,8 @@ pub struct Job<'a> {
 struct Task<'a> {
     space: &'a ShapeSpace,
     scene: Scene,
-    /// Training standard deviation of each latent dimension (the device's code unit).
-    stds: Vec<f64>,
+    /// The device's coordinates z to latent codes: s = to_code z.
+    to_code: Matrix,
     base: Buffer,
     basis: Buffer,
     state: Buffer,
@@ -425,6 +549,11 @@ impl<'a> Task<'a> {
     fn new(ctx: &Context, job: &Job<'a>, params: &RegisterParams) -> Result<Self> {
         let space = job.space;
         let k = space.dims();
+        if params.optimizer == Optimizer::Bfgs && k > BFGS_MAX_DIMS {
+            return Err(Error::InvalidInput(format!(
+                "the bfgs optimizer takes at most {BFGS_MAX_DIMS} latent dimensions, the space has {k}"
+            )));
+        }
         let scene = Scene::new(
             ctx,
             &SceneDesc {
@@ -435,18 +564,7 @@ impl<'a> Task<'a> {
                 attributes: None,
             },
         )?;
-        let stds: Vec<f64> = (0..k)
-            .map(|j| {
-                let t = space.training_codes.len() as f64;
-                let var = space
-                    .training_codes
-                    .iter()
-                    .map(|c| c[j] * c[j])
-                    .sum::<f64>()
-                    / (t - 1.0).max(1.0);
-                var.sqrt().max(1e-12)
-            })
-            .collect();
+        let to_code = optimizer_coordinates(space, params.optimizer);
         let base: Vec<f32> = space
             .canonical
             .positions()
@@ -455,17 +573,21 @@ impl<'a> Task<'a> {
             .zip(&space.offset)
             .map(|(&c, &d)| (c as f64 + d) as f32)
             .collect();
-        let basis: Vec<f32> = space
-            .deformation_basis
-            .iter()
-            .zip(&stds)
-            .flat_map(|(b, &s)| b.iter().map(move |&v| (v * s) as f32))
+        let basis: Vec<f32> = (0..k)
+            .flat_map(|c| {
+                let to_code = &to_code;
+                (0..space.offset.len()).map(move |i| {
+                    (0..k)
+                        .map(|j| space.deformation_basis[j][i] * to_code.at(j, c))
+                        .sum::<f64>() as f32
+                })
+            })
             .collect();
         let state_len = State::len(k, params.iterations);
         Ok(Self {
             space,
             scene,
-            stds,
+            to_code,
             base: Buffer::from_slice(ctx, "canonical + offset", &base)?,
             basis: Buffer::from_slice(ctx, "scaled deformation basis", &basis)?,
             state: Buffer::from_slice(ctx, "optimizer state", &vec![0f32; state_len])?,
@@ -496,36 +618,120 @@ impl<'a> Task<'a> {
         Ok(*losses.last().unwrap_or(&f32::NAN) as f64)
     }
 
+    /// The latent code of device coordinates `z`.
+    fn code(&self, z: &[f32]) -> Vec<f64> {
+        (0..self.k)
+            .map(|j| {
+                (0..self.k)
+                    .map(|c| self.to_code.at(j, c) * z[c] as f64)
+                    .sum()
+            })
+            .collect()
+    }
+
     fn result(&self, params: &RegisterParams) -> Result<Registration> {
         let k = self.k;
         let values = self
             .state
             .read_range::<f32>(0, State::len(k, params.iterations))?;
-        let code: Vec<f64> = (0..k)
-            .map(|j| values[State::LATENT + j] as f64 * self.stds[j])
-            .collect();
+        let (code, pose) = match params.optimizer {
+            Optimizer::Sgd | Optimizer::Adam => (
+                self.code(&values[State::LATENT..State::LATENT + k]),
+                read_pose(self.scene.views())?,
+            ),
+            // The last accepted point (the current one is a step not yet evaluated).
+            Optimizer::Bfgs => {
+                let at = State::accepted(k, params.iterations);
+                let x: Vec<f64> = values[at..at + k + 6].iter().map(|&v| v as f64).collect();
+                let r0 = &values[State::r0(k, params.iterations)..];
+                let initial = DMat3::from_cols_array(&std::array::from_fn(|i| r0[i] as f64));
+                let t0 = DVec3::from_array(std::array::from_fn(|i| r0[9 + i] as f64));
+                let pose = if params.pose_every > 0 {
+                    let w = DVec3::new(x[k + 3], x[k + 4], x[k + 5]);
+                    let rotation = DMat3::from_quat(glam::DQuat::from_scaled_axis(w)) * initial;
+                    Pose {
+                        translation: t0 + DVec3::new(x[k], x[k + 1], x[k + 2]),
+                        rotation: glam::DQuat::from_mat3(&rotation).to_scaled_axis(),
+                    }
+                } else {
+                    read_pose(self.scene.views())?
+                };
+                (self.code(&values[at..at + k]), pose)
+            }
+        };
         let losses = values[State::losses(k)..State::losses(k) + self.done]
             .iter()
             .map(|&l| l as f64)
             .collect();
         let at = State::codes(k, params.iterations);
         let codes = (0..self.done)
-            .map(|t| {
-                (0..k)
-                    .map(|j| values[at + t * k + j] as f64 * self.stds[j])
-                    .collect()
-            })
+            .map(|t| self.code(&values[at + t * k..at + (t + 1) * k]))
             .collect();
         Ok(Registration {
             vertices: self.space.vertices(&code)?,
             code,
-            pose: read_pose(self.scene.views())?,
+            pose,
             losses,
             codes,
             iterations: self.done,
             milliseconds: self.milliseconds,
         })
     }
+}
+
+/// The optimiser's coordinates z of the latent code, s = A z. Each z is one training
+/// standard deviation for SGD and Adam (the paper's units). For BFGS the columns of B A are
+/// orthogonal in vertex space and all of one length, the RMS of the training deformations:
+/// the latent dimensions of a PCA over W can be strongly correlated in vertex space
+/// (0.97 for two of a bottle's), and a code beyond 3 standard deviations can be the best
+/// fit of a test instance, which the clamp to 3 units then still allows.
+fn optimizer_coordinates(space: &ShapeSpace, optimizer: Optimizer) -> Matrix {
+    let k = space.dims();
+    let t = (space.training_codes.len() as f64 - 1.0).max(1.0);
+    let mut a = Matrix::zeros(k, k);
+    if optimizer != Optimizer::Bfgs {
+        for j in 0..k {
+            let var = space
+                .training_codes
+                .iter()
+                .map(|c| c[j] * c[j])
+                .sum::<f64>()
+                / t;
+            a.set(j, j, var.sqrt().max(1e-12));
+        }
+        return a;
+    }
+    let basis = &space.deformation_basis;
+    let mut gram = Matrix::zeros(k, k);
+    for i in 0..k {
+        for j in 0..k {
+            gram.set(
+                i,
+                j,
+                basis[i].iter().zip(&basis[j]).map(|(a, b)| a * b).sum(),
+            );
+        }
+    }
+    let spread = space
+        .training_codes
+        .iter()
+        .map(|c| {
+            (0..k)
+                .flat_map(|i| (0..k).map(move |j| (i, j)))
+                .map(|(i, j)| c[i] * gram.at(i, j) * c[j])
+                .sum::<f64>()
+        })
+        .sum::<f64>()
+        / t;
+    let (values, vectors) = linalg::symmetric_eigen(&gram);
+    let floor = 1e-12 * values.iter().sum::<f64>().max(f64::MIN_POSITIVE);
+    for c in 0..k {
+        let scale = spread.sqrt() / values[c].max(floor).sqrt();
+        for j in 0..k {
+            a.set(j, c, vectors.at(j, c) * scale);
+        }
+    }
+    a
 }
 
 /// The first view's pose as the device holds it.

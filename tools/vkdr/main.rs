@@ -140,11 +140,11 @@ enum Command {
         /// Only these categories (comma-separated).
         #[arg(long)]
         categories: Option<String>,
-        /// Iterations with pose noise (the pose is updated once per three).
-        #[arg(long, default_value_t = 30)]
+        /// Iterations with pose noise, after the alignment's.
+        #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.iterations)]
         noise_iterations: usize,
         /// Iterations with the pose known.
-        #[arg(long, default_value_t = 30)]
+        #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().known_pose.iterations)]
         known_iterations: usize,
         /// Loss of both conditions: mse | iou | distance (default: each condition's own).
         #[arg(long)]
@@ -152,9 +152,9 @@ enum Command {
         /// Length of the first latent step, in training standard deviations.
         #[arg(long, default_value_t = 0.5)]
         latent_step: f64,
-        /// Adam instead of SGD with momentum.
+        /// Optimiser of both conditions: sgd | adam | bfgs (default: each condition's own).
         #[arg(long)]
-        adam: bool,
+        optimizer: Option<String>,
         /// First pose steps with pose noise: translation (m) and rotation (rad).
         #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.translation_step)]
         translation_step: f64,
@@ -163,9 +163,9 @@ enum Command {
         /// With pose noise: update the pose once every this many iterations...
         #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.pose_every)]
         pose_every: usize,
-        /// ...after this many iterations that move the pose alone.
-        #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.pose_first)]
-        pose_first: usize,
+        /// With pose noise: iterations that first align the pose alone (distance loss).
+        #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.align)]
+        align: usize,
         #[arg(long)]
         out: PathBuf,
     },
@@ -269,9 +269,9 @@ struct RegisterArgs {
     /// mse | iou | distance
     #[arg(long, default_value = "mse")]
     loss: String,
-    /// Adam instead of SGD with momentum.
+    /// sgd | adam | bfgs (default: that of `vkdr eval`'s condition)
     #[arg(long)]
-    adam: bool,
+    optimizer: Option<String>,
     #[arg(long)]
     out: PathBuf,
 }
@@ -350,11 +350,11 @@ fn main() {
             known_iterations,
             loss,
             latent_step,
-            adam,
+            optimizer,
             translation_step,
             rotation_step,
             pose_every,
-            pose_first,
+            align,
             out,
         } => {
             let mut settings = vkdr::eval::EvalSettings {
@@ -367,16 +367,21 @@ fn main() {
             settings.pose_noise.translation_step = translation_step;
             settings.pose_noise.rotation_step = rotation_step;
             settings.pose_noise.pose_every = pose_every;
-            settings.pose_noise.pose_first = pose_first;
+            settings.pose_noise.align = align;
             let loss = loss.map(|l| l.parse::<vkdr::loss::Loss>()).transpose();
-            loss.map_err(anyhow::Error::from).and_then(|loss| {
-                for params in [&mut settings.known_pose, &mut settings.pose_noise] {
-                    params.latent_step = latent_step;
-                    params.adam = adam;
-                    params.loss = loss.unwrap_or(params.loss);
-                }
-                eval(&dataset, settings, categories.as_deref(), &out)
-            })
+            let optimizer = optimizer
+                .map(|o| vkdr::register::Optimizer::parse(&o))
+                .transpose();
+            loss.and_then(|loss| Ok((loss, optimizer?)))
+                .map_err(anyhow::Error::from)
+                .and_then(|(loss, optimizer)| {
+                    for params in [&mut settings.known_pose, &mut settings.pose_noise] {
+                        params.latent_step = latent_step;
+                        params.optimizer = optimizer.unwrap_or(params.optimizer);
+                        params.loss = loss.unwrap_or(params.loss);
+                    }
+                    eval(&dataset, settings, categories.as_deref(), &out)
+                })
         }
         Command::ShapeSpace {
             category_dir,
@@ -635,15 +640,20 @@ fn register(args: &RegisterArgs) -> Result<()> {
         (None, None) => anyhow::bail!("give --observed MASK.png or --observed-mesh TEST.obj"),
     };
     // With the pose: the schedule of `vkdr eval` (pose alone first, then both).
+    let settings = vkdr::eval::EvalSettings::default();
     let base = if args.optimize_pose {
-        vkdr::eval::EvalSettings::default().pose_noise
+        settings.pose_noise
     } else {
-        vkdr::register::RegisterParams::default()
+        settings.known_pose
     };
+    let optimizer = args
+        .optimizer
+        .as_deref()
+        .map(vkdr::register::Optimizer::parse);
     let params = vkdr::register::RegisterParams {
         iterations: args.iterations,
         loss: args.loss.parse()?,
-        adam: args.adam,
+        optimizer: optimizer.transpose()?.unwrap_or(base.optimizer),
         ..base
     };
     let result = eval_cmd::register(&ctx, &space, &observed, view, &params, &args.out)?;

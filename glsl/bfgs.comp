@@ -1,0 +1,211 @@
+#version 460
+// One quasi-Newton (BFGS) step on the device (a single invocation), over the latent code
+// and, with pose optimisation, the pose, as x = (z, t - t0, w) with the pose
+// t = t0 + (x_t), R = exp([w]x) R0 around the initial pose (R0, t0).
+//
+// Each iteration has evaluated the loss and gradient at the current point x. If the loss
+// decreased enough (Armijo) the point is accepted: the inverse-Hessian estimate H takes
+// the BFGS update from the last accepted point, and the next point is x - H g (its length
+// capped). Otherwise the step back from the last accepted point is halved. The latent
+// code and the pose are thereby scaled against each other by the curvature the
+// iterations observe instead of by hand-set learning rates; H starts as a diagonal that
+// makes the first step of each part the configured length.
+//
+// State layout (floats): see `register::State`; this shader uses the quasi-Newton region.
+#include "views.glsl"
+
+layout(local_size_x = 1) in;
+
+layout(set = 0, binding = 0, std430) buffer State { float state[]; };
+layout(set = 0, binding = 1, std430) readonly buffer GradLatent { float grad_latent[]; };
+layout(set = 0, binding = 2, std430) readonly buffer GradPose { float grad_pose[]; };
+layout(set = 0, binding = 3, std430) readonly buffer Stats { float stats[]; };
+layout(set = 0, binding = 4, std430) buffer Views { ViewData views[]; };
+
+layout(push_constant, std430) uniform Constants {
+    uint dims;
+    uint pose_every;     // 0: pose fixed
+    uint optimize_z;
+    uint adam;           // unused
+    float momentum;      // unused
+    float decay;         // unused
+    float latent_step;   // length of the first latent step (code units)
+    float translation_step;  // metres
+    float rotation_step;     // radians
+    uint max_iterations;
+    uint shape_after;    // iterations that move the pose alone before the shape moves
+} pc;
+
+const uint ITERATION = 0u;
+const uint LATENT = 8u;
+const uint MAX_N = 64u;
+uint n() { return pc.dims + 6u; }
+uint losses_at() { return LATENT + 3u * pc.dims + 6u; }
+uint codes_at() { return losses_at() + pc.max_iterations; }
+// Quasi-Newton region: accepted loss, halvings in a row, R0 (9), t0 (3), the current
+// pose part of x (6), the accepted x (n), its gradient (n), H (n x n).
+uint qn_at() { return codes_at() + pc.max_iterations * pc.dims; }
+uint accepted_loss_at() { return qn_at(); }
+uint halvings_at() { return qn_at() + 1u; }
+uint r0_at() { return qn_at() + 2u; }
+uint t0_at() { return qn_at() + 11u; }
+uint pose_x_at() { return qn_at() + 14u; }
+uint accepted_at() { return qn_at() + 20u; }
+uint accepted_grad_at() { return accepted_at() + n(); }
+uint h_at() { return accepted_grad_at() + n(); }
+
+float x_at(uint i) { return i < pc.dims ? state[LATENT + i] : state[pose_x_at() + i - pc.dims]; }
+void set_x(uint i, float v) {
+    if (i < pc.dims) state[LATENT + i] = v; else state[pose_x_at() + i - pc.dims] = v;
+}
+float h(uint i, uint j) { return state[h_at() + i * n() + j]; }
+void set_h(uint i, uint j, float v) { state[h_at() + i * n() + j] = v; }
+
+mat3 skew(vec3 w) { return mat3(0.0, w.z, -w.y, -w.z, 0.0, w.x, w.y, -w.x, 0.0); }
+
+mat3 rodrigues(vec3 w) {
+    float angle = length(w);
+    if (angle < 1e-6) return mat3(1.0) + skew(w);
+    mat3 k = skew(w / angle);
+    return mat3(1.0) + sin(angle) * k + (1.0 - cos(angle)) * k * k;
+}
+
+// The left Jacobian of the rotation exponential: exp([w + d]x) ~ exp([J d]x) exp([w]x).
+mat3 left_jacobian(vec3 w) {
+    float angle = length(w);
+    if (angle < 1e-4) return mat3(1.0) + 0.5 * skew(w);
+    mat3 k = skew(w);
+    float a2 = angle * angle;
+    return mat3(1.0) + (1.0 - cos(angle)) / a2 * k + (angle - sin(angle)) / (a2 * angle) * k * k;
+}
+
+// Which parts move this iteration: the latent code after `shape_after` iterations, the
+// pose whenever it is optimised.
+bool moves(uint i, uint t) {
+    if (i < pc.dims) return t >= pc.shape_after;
+    if (pc.pose_every == 0u) return false;
+    return i != pc.dims + 2u || pc.optimize_z != 0u;
+}
+
+void main() {
+    uint t = uint(state[ITERATION]);
+    uint count = n();
+    float loss = stats[3];
+    if (t < pc.max_iterations) state[losses_at() + t] = loss;
+
+    if (t == 0u) {
+        mat4 m = views[0].object_to_camera;
+        for (uint c = 0u; c < 3u; ++c) {
+            for (uint r = 0u; r < 3u; ++r) state[r0_at() + 3u * c + r] = m[c][r];
+            state[t0_at() + c] = m[3][c];
+        }
+        for (uint i = 0u; i < 6u; ++i) state[pose_x_at() + i] = 0.0;
+        for (uint i = 0u; i < count * count; ++i) state[h_at() + i] = 0.0;
+        state[accepted_loss_at()] = 3.0e38;
+    }
+
+    // The gradient at x, in x's coordinates (the renderer's rotation gradient is for a
+    // left increment of the current rotation).
+    float g[MAX_N];
+    vec3 w = vec3(state[pose_x_at() + 3u], state[pose_x_at() + 4u], state[pose_x_at() + 5u]);
+    vec3 gw = transpose(left_jacobian(w)) * vec3(grad_pose[3], grad_pose[4], grad_pose[5]);
+    for (uint i = 0u; i < count; ++i) {
+        float v = i < pc.dims ? grad_latent[i] : (i < pc.dims + 3u ? grad_pose[i - pc.dims] : gw[i - pc.dims - 3u]);
+        g[i] = moves(i, t) ? v : 0.0;
+    }
+
+    // A part that starts moving now gets its diagonal of H: first step of the set length.
+    float parts[3] = float[3](0.0, 0.0, 0.0);
+    for (uint i = 0u; i < count; ++i) {
+        uint part = i < pc.dims ? 0u : (i < pc.dims + 3u ? 1u : 2u);
+        parts[part] += g[i] * g[i];
+    }
+    float steps[3] = float[3](pc.latent_step, pc.translation_step, pc.rotation_step);
+    for (uint i = 0u; i < count; ++i) {
+        uint part = i < pc.dims ? 0u : (i < pc.dims + 3u ? 1u : 2u);
+        bool starts = moves(i, t) && (t == 0u || !moves(i, t - 1u));
+        if (starts) set_h(i, i, parts[part] > 0.0 ? steps[part] / sqrt(parts[part]) : 0.0);
+    }
+
+    float accepted_loss = state[accepted_loss_at()];
+    float predicted = 0.0;
+    for (uint i = 0u; i < count; ++i) {
+        predicted += state[accepted_grad_at() + i] * (x_at(i) - state[accepted_at() + i]);
+    }
+    bool accept = t == 0u || (!isnan(loss) && loss <= accepted_loss + 1e-4 * predicted);
+    if (accept) {
+        // BFGS update of H from the step s and the gradient change y.
+        float s[MAX_N];
+        float y[MAX_N];
+        float sy = 0.0;
+        for (uint i = 0u; i < count; ++i) {
+            s[i] = x_at(i) - state[accepted_at() + i];
+            y[i] = g[i] - state[accepted_grad_at() + i];
+            sy += s[i] * y[i];
+        }
+        if (t > 0u && sy > 1e-12) {
+            float hy[MAX_N];
+            float yhy = 0.0;
+            for (uint i = 0u; i < count; ++i) {
+                hy[i] = 0.0;
+                for (uint j = 0u; j < count; ++j) hy[i] += h(i, j) * y[j];
+                yhy += y[i] * hy[i];
+            }
+            // H' = H + (sy + yHy) ss^T / sy^2 - (Hy s^T + s y^T H) / sy
+            for (uint i = 0u; i < count; ++i) {
+                for (uint j = 0u; j < count; ++j) {
+                    float v = h(i, j) + (sy + yhy) * s[i] * s[j] / (sy * sy)
+                        - (hy[i] * s[j] + s[i] * hy[j]) / sy;
+                    set_h(i, j, v);
+                }
+            }
+        }
+        for (uint i = 0u; i < count; ++i) {
+            state[accepted_at() + i] = x_at(i);
+            state[accepted_grad_at() + i] = g[i];
+        }
+        state[accepted_loss_at()] = loss;
+        state[halvings_at()] = 0.0;
+
+        // Next point: x - H g, each part's step at most twice its first length.
+        float d[MAX_N];
+        float lengths[3] = float[3](0.0, 0.0, 0.0);
+        for (uint i = 0u; i < count; ++i) {
+            d[i] = 0.0;
+            for (uint j = 0u; j < count; ++j) d[i] -= h(i, j) * g[j];
+            uint part = i < pc.dims ? 0u : (i < pc.dims + 3u ? 1u : 2u);
+            lengths[part] += d[i] * d[i];
+        }
+        float scale = 1.0;
+        for (uint p = 0u; p < 3u; ++p) {
+            float cap = 2.0 * steps[p];
+            if (lengths[p] > cap * cap) scale = min(scale, cap / sqrt(lengths[p]));
+        }
+        for (uint i = 0u; i < count; ++i) set_x(i, x_at(i) + scale * d[i]);
+    } else {
+        for (uint i = 0u; i < count; ++i) {
+            float a = state[accepted_at() + i];
+            set_x(i, a + 0.5 * (x_at(i) - a));
+        }
+        state[halvings_at()] += 1.0;
+    }
+    // Codes stay within 3 units (training RMS deformations) of the mean shape.
+    for (uint i = 0u; i < pc.dims; ++i) state[LATENT + i] = clamp(state[LATENT + i], -3.0, 3.0);
+    // The code after this iteration is the best found so far.
+    for (uint j = 0u; j < pc.dims; ++j) {
+        if (t < pc.max_iterations) state[codes_at() + t * pc.dims + j] = state[accepted_at() + j];
+    }
+
+    if (pc.pose_every > 0u) {
+        mat3 r0;
+        for (uint c = 0u; c < 3u; ++c) {
+            for (uint r = 0u; r < 3u; ++r) r0[c][r] = state[r0_at() + 3u * c + r];
+        }
+        vec3 x_t = vec3(state[pose_x_at()], state[pose_x_at() + 1u], state[pose_x_at() + 2u]);
+        vec3 x_w = vec3(state[pose_x_at() + 3u], state[pose_x_at() + 4u], state[pose_x_at() + 5u]);
+        mat3 r = rodrigues(x_w) * r0;
+        vec3 translation = vec3(state[t0_at()], state[t0_at() + 1u], state[t0_at() + 2u]) + x_t;
+        views[0].object_to_camera = mat4(vec4(r[0], 0.0), vec4(r[1], 0.0), vec4(r[2], 0.0), vec4(translation, 1.0));
+    }
+    state[ITERATION] = float(t + 1u);
+}
