@@ -244,8 +244,12 @@ pub struct Row {
     pub pose_noise_chamfer: Stat,
     /// Largest pose-noise error over the trials (divergence check).
     pub pose_noise_worst: f64,
+    /// Mean iterations and milliseconds of a registration with the pose known...
     pub iterations: f64,
     pub ms: f64,
+    /// ...and with pose noise (the alignment's included).
+    pub noise_iterations: f64,
+    pub noise_ms: f64,
     /// Mean error after each iteration (known pose, pose noise) and mean ms per iteration.
     pub curve_known: Vec<f64>,
     pub curve_noise: Vec<f64>,
@@ -285,8 +289,9 @@ pub fn evaluate_instance(
     let oracle_code = space.oracle_code(ctx, &test_vertices, &settings.cpd)?;
     let oracle_vertices = space.vertices(&oracle_code)?;
     let mut rng = Rng::new(settings.seed ^ hash(name));
-    let (mut known, mut known_ch, mut noisy, mut noisy_ch, mut iterations, mut ms) =
-        (vec![], vec![], vec![], vec![], vec![], vec![]);
+    let (mut known, mut known_ch, mut noisy, mut noisy_ch) = (vec![], vec![], vec![], vec![]);
+    let (mut iterations, mut ms, mut noise_iterations, mut noise_ms) =
+        (vec![], vec![], vec![], vec![]);
     let mut curve_known = vec![0.0; settings.known_pose.total_iterations()];
     let mut curve_noise = vec![0.0; settings.pose_noise.total_iterations()];
     let mut ms_per_iteration = Vec::new();
@@ -343,6 +348,8 @@ pub fn evaluate_instance(
             space.canonical.triangles(),
         ));
         noisy_ch.push(chamfer(&test_vertices, &result.vertices));
+        noise_iterations.push(result.iterations as f64);
+        noise_ms.push(result.milliseconds);
         accumulate_curve(
             &mut curve_noise,
             space,
@@ -364,6 +371,8 @@ pub fn evaluate_instance(
         pose_noise_chamfer: Stat::of(&noisy_ch),
         iterations: Stat::of(&iterations).mean,
         ms: Stat::of(&ms).mean,
+        noise_iterations: Stat::of(&noise_iterations).mean,
+        noise_ms: Stat::of(&noise_ms).mean,
         curve_known,
         curve_noise,
         ms_per_iteration: Stat::of(&ms_per_iteration).mean,

@@ -53,9 +53,9 @@ pub fn register(
         &out.join("overlay_start.png"),
         &image::DynamicImage::ImageRgb8(overlay(observed, &start, w, h)),
     )?;
-    let total = params.iterations;
+    let total = params.total_iterations();
     let result = registrar.register(ctx, space, observed, view, params, |done, loss| {
-        let filled = done * 30 / total.max(1);
+        let filled = (done * 30 / total.max(1)).min(30);
         eprint!(
             "\r  register [{}{}] {done}/{total} loss {loss:.5}",
             "#".repeat(filled),
@@ -203,28 +203,33 @@ pub fn write_reports(
 ) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let c = &settings.camera;
+    let (known, noisy) = (&settings.known_pose, &settings.pose_noise);
     let mut md = format!(
         "# Registration error (Table 1)\n\nDevice: {device}. Camera: fx {} fy {} cx {} cy {}, {}x{} px; object at {} m; views from the upper hemisphere \
          (elevation {:.0}-{:.0} deg) at random azimuth; {} trials per instance (seed {}). Pose noise: uniform +-{} cm in x and y, +-{:.0} deg about each axis. \
          Error: mean distance (mm) from {} points sampled uniformly on the test surface to the deformed canonical's surface; \
          oracle: least-squares latent fit to CPD of the canonical onto the true instance; \
-         ratio = error / oracle error; chamfer = symmetric chamfer distance of the vertex sets (mm).\n\n\
-         | category | instance | oracle | known pose | ratio | pose noise | ratio | worst noise trial | chamfer oracle / known / noise | iterations | ms |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
+         ratio = error / oracle error; chamfer = symmetric chamfer distance of the vertex sets (mm). \
+         Registration: known pose, {} for {} iterations ({} loss); pose noise, the pose aligned alone for {} iterations ({} loss), \
+         then pose and shape by {} for {} ({} loss).\n\n\
+         | category | instance | oracle | known pose | ratio | pose noise | ratio | worst noise trial | chamfer oracle / known / noise | iterations known / noise | ms known / noise |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
         c.fx, c.fy, c.cx, c.cy, c.width, c.height, settings.distance,
         settings.elevation.0.to_degrees(), settings.elevation.1.to_degrees(), settings.trials, settings.seed,
-        100.0 * settings.translation_noise, settings.rotation_noise.to_degrees(), eval::SAMPLE_POINTS
+        100.0 * settings.translation_noise, settings.rotation_noise.to_degrees(), eval::SAMPLE_POINTS,
+        known.optimizer.name(), known.iterations, known.loss.name(), noisy.align, noisy.align_loss.name(),
+        noisy.optimizer.name(), noisy.iterations, noisy.loss.name()
     );
-    let mut csv = String::from("category,instance,oracle,known_pose_mean,known_pose_std,pose_noise_mean,pose_noise_std,iterations,ms,oracle_chamfer,known_pose_chamfer,pose_noise_chamfer\n");
+    let mut csv = String::from("category,instance,oracle,known_pose_mean,known_pose_std,pose_noise_mean,pose_noise_std,iterations,ms,oracle_chamfer,known_pose_chamfer,pose_noise_chamfer,noise_iterations,noise_ms\n");
     let mut json = Vec::new();
     for r in rows {
         md.push_str(&format!(
-            "| {} | {} | {:.2} | {:.2} +- {:.2} | {:.2} | {:.2} +- {:.2} | {:.2} | {:.2} | {:.2} / {:.2} / {:.2} | {:.1} | {:.0} |\n",
+            "| {} | {} | {:.2} | {:.2} +- {:.2} | {:.2} | {:.2} +- {:.2} | {:.2} | {:.2} | {:.2} / {:.2} / {:.2} | {:.1} / {:.1} | {:.0} / {:.0} |\n",
             r.category, r.instance, 1e3 * r.oracle, 1e3 * r.known_pose.mean, 1e3 * r.known_pose.std, r.known_pose.mean / r.oracle,
             1e3 * r.pose_noise.mean, 1e3 * r.pose_noise.std, r.pose_noise.mean / r.oracle, 1e3 * r.pose_noise_worst,
-            1e3 * r.oracle_chamfer, 1e3 * r.known_pose_chamfer.mean, 1e3 * r.pose_noise_chamfer.mean, r.iterations, r.ms
+            1e3 * r.oracle_chamfer, 1e3 * r.known_pose_chamfer.mean, 1e3 * r.pose_noise_chamfer.mean, r.iterations, r.noise_iterations, r.ms, r.noise_ms
         ));
         csv.push_str(&format!(
-            "{},{},{:e},{:e},{:e},{:e},{:e},{},{:.3},{:e},{:e},{:e}\n",
+            "{},{},{:e},{:e},{:e},{:e},{:e},{},{:.3},{:e},{:e},{:e},{},{:.3}\n",
             r.category,
             r.instance,
             r.oracle,
@@ -236,12 +241,14 @@ pub fn write_reports(
             r.ms,
             r.oracle_chamfer,
             r.known_pose_chamfer.mean,
-            r.pose_noise_chamfer.mean
+            r.pose_noise_chamfer.mean,
+            r.noise_iterations,
+            r.noise_ms
         ));
         json.push(format!(
-            "  {{\"category\": {:?}, \"instance\": {:?}, \"oracle\": {:e}, \"known_pose\": {{\"mean\": {:e}, \"std\": {:e}}}, \"pose_noise\": {{\"mean\": {:e}, \"std\": {:e}}}, \"iterations\": {}, \"ms\": {:.3}, \"chamfer\": {{\"oracle\": {:e}, \"known_pose\": {:e}, \"pose_noise\": {:e}}}}}",
+            "  {{\"category\": {:?}, \"instance\": {:?}, \"oracle\": {:e}, \"known_pose\": {{\"mean\": {:e}, \"std\": {:e}}}, \"pose_noise\": {{\"mean\": {:e}, \"std\": {:e}}}, \"iterations\": {}, \"ms\": {:.3}, \"chamfer\": {{\"oracle\": {:e}, \"known_pose\": {:e}, \"pose_noise\": {:e}}}, \"noise_iterations\": {}, \"noise_ms\": {:.3}}}",
             r.category, r.instance, r.oracle, r.known_pose.mean, r.known_pose.std, r.pose_noise.mean, r.pose_noise.std, r.iterations, r.ms,
-            r.oracle_chamfer, r.known_pose_chamfer.mean, r.pose_noise_chamfer.mean
+            r.oracle_chamfer, r.known_pose_chamfer.mean, r.pose_noise_chamfer.mean, r.noise_iterations, r.noise_ms
         ));
     }
     write_atomically(&out.join("table.md"), md.as_bytes())?;
