@@ -1,5 +1,6 @@
-//! `vkdr bench-register`: one registration at benchmark size (by default 30 iterations,
-//! 640 x 480, a canonical of about 1e4 vertices, pose noise): the wall time of the whole
+//! `vkdr bench-register`: one registration at benchmark size (by default 640 x 480, a
+//! canonical of about 1e4 vertices, pose noise: 15 iterations aligning the pose, then 30
+//! of pose and shape): the wall time of the whole
 //! registration (median over repeats), the device time of each pass of an iteration, the
 //! throughput of registrations batched in one submission against one at a time, and the
 //! error after each iteration against cumulative time.
@@ -201,7 +202,8 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
     let summary = format!(
         "# vkdr bench-register\n\nDevice: {device}.\n\
          One registration of a {category} ({m} vertices, {faces} triangles, {dims}-dimensional space) from a {w}x{h} mask with pose noise \
-         (+-{tn} cm, +-{rn:.0} deg), {it} iterations (schedule of `vkdr eval`), seed {seed}.\n\n\
+         (+-{tn} cm, +-{rn:.0} deg), the schedule of `vkdr eval`: {align} iterations aligning the pose alone, then {it} of pose and shape \
+         ({optimizer}), seed {seed}.\n\n\
          | measure | value |\n|---|---|\n\
          | registration, wall (median of {reps}, set-up included) | {wall:.1} ms |\n\
          | per iteration, wall | {per_iteration:.2} ms |\n\
@@ -223,6 +225,8 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
         tn = 100.0 * settings.translation_noise,
         rn = settings.rotation_noise.to_degrees(),
         it = args.iterations,
+        align = params.align,
+        optimizer = params.optimizer.name(),
         seed = args.seed,
         reps = args.repeats,
         deform = pass.deform,

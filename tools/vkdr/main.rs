@@ -260,12 +260,14 @@ struct RegisterArgs {
     /// The camera and the initial pose.
     #[command(flatten)]
     view: ViewArgs,
-    /// Optimise the pose too (the schedule of `vkdr eval`: the pose alone for 15
-    /// iterations, then pose and shape; z stays fixed). Use --loss distance with it.
+    /// Optimise the pose too (the schedule of `vkdr eval`: the pose aligned alone for 15
+    /// iterations with the distance loss, then pose and shape; z stays fixed).
     #[arg(long)]
     optimize_pose: bool,
-    #[arg(long, default_value_t = 30)]
-    iterations: usize,
+    /// Iterations (after the alignment; default: that of `vkdr eval`'s condition, 30 with
+    /// the pose fixed, 60 with --optimize-pose).
+    #[arg(long)]
+    iterations: Option<usize>,
     /// mse | iou | distance
     #[arg(long, default_value = "mse")]
     loss: String,
@@ -651,7 +653,7 @@ fn register(args: &RegisterArgs) -> Result<()> {
         .as_deref()
         .map(vkdr::register::Optimizer::parse);
     let params = vkdr::register::RegisterParams {
-        iterations: args.iterations,
+        iterations: args.iterations.unwrap_or(base.iterations),
         loss: args.loss.parse()?,
         optimizer: optimizer.transpose()?.unwrap_or(base.optimizer),
         ..base
