@@ -132,7 +132,13 @@ void main() {
     for (uint i = 0u; i < count; ++i) {
         predicted += state[accepted_grad_at() + i] * (x_at(i) - state[accepted_at() + i]);
     }
-    bool accept = t == 0u || (!isnan(loss) && loss <= accepted_loss + 1e-4 * predicted);
+    bool finite = !isnan(loss) && !isinf(loss);
+    for (uint i = 0u; i < count; ++i) finite = finite && !isnan(g[i]) && !isinf(g[i]);
+    // A non-finite loss or gradient is never accepted (the first point keeps a zero step).
+    if (!finite) {
+        for (uint i = 0u; i < count; ++i) g[i] = 0.0;
+    }
+    bool accept = t == 0u || (finite && loss <= accepted_loss + 1e-4 * predicted);
     if (accept) {
         // BFGS update of H from the step s and the gradient change y.
         float s[MAX_N];

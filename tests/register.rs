@@ -322,3 +322,47 @@ fn bfgs_aligns_then_fits_pose_and_shape() {
     assert!(v1 < 0.5 * v0, "vertex RMS {v0} -> {v1}");
     assert_eq!(result.pose.translation.z as f32, 0.6, "z stays fixed");
 }
+
+/// A hard case: nothing observed (an empty mask). The quasi-Newton steps stay finite and
+/// the result is a valid mesh and pose, not NaN.
+#[test]
+fn bfgs_stays_finite_on_an_empty_observation() {
+    let ctx = common::context();
+    let space = space(&ctx);
+    let view = View {
+        camera: camera(),
+        pose: Pose::new([0.01, 0.0, 0.6], [2.9, 0.3, 0.1]).unwrap(),
+    };
+    let observed = vec![0.0f32; 128 * 128];
+    let registrar = Registrar::new(&ctx).unwrap();
+    for loss in [vkdr::loss::Loss::Mse, vkdr::loss::Loss::Distance] {
+        let params = RegisterParams {
+            iterations: 12,
+            align: 6,
+            pose_every: 1,
+            optimizer: Optimizer::Bfgs,
+            loss,
+            ..Default::default()
+        };
+        let result = registrar
+            .register(&ctx, &space, &observed, view, &params, |_, _| {})
+            .unwrap();
+        common::assert_no_validation_errors(&ctx);
+        assert!(
+            result.losses.iter().all(|l| l.is_finite()),
+            "{loss:?}: {:?}",
+            result.losses
+        );
+        assert!(
+            result.code.iter().all(|c| c.is_finite()),
+            "{loss:?}: {:?}",
+            result.code
+        );
+        assert!(result.vertices.iter().all(|v| v.is_finite()));
+        assert!(
+            result.pose.translation.is_finite() && result.pose.rotation.is_finite(),
+            "{loss:?}: {:?}",
+            result.pose
+        );
+    }
+}
