@@ -169,6 +169,10 @@ impl State {
     fn r0(dims: usize, iterations: usize) -> usize {
         Self::quasi_newton(dims, iterations) + 2
     }
+    #[cfg(test)]
+    fn pose_x(dims: usize, iterations: usize) -> usize {
+        Self::quasi_newton(dims, iterations) + 14
+    }
     fn accepted(dims: usize, iterations: usize) -> usize {
         Self::quasi_newton(dims, iterations) + 20
     }
@@ -758,8 +762,306 @@ fn read_pose(views: &crate::raster::ViewBuffers) -> Result<Pose> {
 mod tests {
     use super::*;
     use crate::dataset::Rng;
+    use crate::raster::ViewBuffers;
     use crate::shape::TrainingFit;
-    use crate::Mesh;
+    use crate::{Camera, Mesh};
+
+    /// `glsl/bfgs.comp` in float64: the state of one quasi-Newton run over x (code, then
+    /// translation and rotation offsets), fed the loss and gradient at each new point.
+    struct BfgsReference {
+        steps: [f64; 3],
+        dims: usize,
+        x: Vec<f64>,
+        accepted: Vec<f64>,
+        accepted_grad: Vec<f64>,
+        accepted_loss: f64,
+        h: Vec<Vec<f64>>,
+        t: usize,
+        /// How often a step was capped and how often one was halved.
+        capped: usize,
+        halved: usize,
+    }
+
+    impl BfgsReference {
+        fn new(dims: usize, steps: [f64; 3]) -> Self {
+            let n = dims + 6;
+            Self {
+                steps,
+                dims,
+                x: vec![0.0; n],
+                accepted: vec![0.0; n],
+                accepted_grad: vec![0.0; n],
+                accepted_loss: f64::INFINITY,
+                h: vec![vec![0.0; n]; n],
+                t: 0,
+                capped: 0,
+                halved: 0,
+            }
+        }
+
+        fn part(&self, i: usize) -> usize {
+            if i < self.dims {
+                0
+            } else if i < self.dims + 3 {
+                1
+            } else {
+                2
+            }
+        }
+
+        /// One iteration with the loss and gradient (z translation masked) at `self.x`.
+        fn step(&mut self, loss: f64, mut g: Vec<f64>) {
+            let n = self.x.len();
+            g[self.dims + 2] = 0.0;
+            if self.t == 0 {
+                let mut norms = [0.0; 3];
+                for (i, gi) in g.iter().enumerate() {
+                    norms[self.part(i)] += gi * gi;
+                }
+                for i in 0..n {
+                    if i != self.dims + 2 {
+                        let norm = norms[self.part(i)].sqrt();
+                        self.h[i][i] = self.steps[self.part(i)] / norm;
+                    }
+                }
+            }
+            let s: Vec<f64> = (0..n).map(|i| self.x[i] - self.accepted[i]).collect();
+            let predicted: f64 = (0..n).map(|i| self.accepted_grad[i] * s[i]).sum();
+            if self.t == 0 || loss <= self.accepted_loss + 1e-4 * predicted {
+                let y: Vec<f64> = (0..n).map(|i| g[i] - self.accepted_grad[i]).collect();
+                let sy: f64 = (0..n).map(|i| s[i] * y[i]).sum();
+                if self.t > 0 && sy > 1e-12 {
+                    let hy: Vec<f64> = (0..n)
+                        .map(|i| (0..n).map(|j| self.h[i][j] * y[j]).sum())
+                        .collect();
+                    let yhy: f64 = (0..n).map(|i| y[i] * hy[i]).sum();
+                    for i in 0..n {
+                        for j in 0..n {
+                            self.h[i][j] += (sy + yhy) * s[i] * s[j] / (sy * sy)
+                                - (hy[i] * s[j] + s[i] * hy[j]) / sy;
+                        }
+                    }
+                }
+                self.accepted = self.x.clone();
+                self.accepted_grad = g.clone();
+                self.accepted_loss = loss;
+                let d: Vec<f64> = (0..n)
+                    .map(|i| -(0..n).map(|j| self.h[i][j] * g[j]).sum::<f64>())
+                    .collect();
+                let mut lengths = [0.0; 3];
+                for (i, di) in d.iter().enumerate() {
+                    lengths[self.part(i)] += di * di;
+                }
+                let scale = (0..3)
+                    .map(|p| (2.0 * self.steps[p] / f64::sqrt(lengths[p])).min(1.0))
+                    .fold(1.0, f64::min);
+                self.capped += (scale < 1.0) as usize;
+                for i in 0..n {
+                    self.x[i] += scale * d[i];
+                }
+            } else {
+                self.halved += 1;
+                for i in 0..n {
+                    self.x[i] = self.accepted[i] + 0.5 * (self.x[i] - self.accepted[i]);
+                }
+            }
+            for xi in &mut self.x[..self.dims] {
+                *xi = xi.clamp(-3.0, 3.0);
+            }
+            self.t += 1;
+        }
+    }
+
+    fn skew(w: DVec3) -> DMat3 {
+        DMat3::from_cols(
+            DVec3::new(0.0, w.z, -w.y),
+            DVec3::new(-w.z, 0.0, w.x),
+            DVec3::new(w.y, -w.x, 0.0),
+        )
+    }
+
+    /// The left Jacobian of the rotation exponential.
+    fn left_jacobian(w: DVec3) -> DMat3 {
+        let a = w.length();
+        let k = skew(w);
+        DMat3::IDENTITY + (1.0 - a.cos()) / (a * a) * k + (a - a.sin()) / (a * a * a) * (k * k)
+    }
+
+    /// The quasi-Newton shader against its float64 reference on a quadratic loss over the
+    /// code and the pose offsets (fed to the shader as the renderer would: the rotation
+    /// gradient for a left increment of the current rotation), step by step, and the pose
+    /// it writes into the view.
+    #[test]
+    fn bfgs_shader_matches_a_float64_reference() {
+        let options = crate::gpu::ContextOptions {
+            validation: true,
+            ..Default::default()
+        };
+        let ctx = Context::with_options(options).expect("the tests need a Vulkan device");
+        let registrar = Registrar::new(&ctx).unwrap();
+        let (k, iterations) = (3usize, 20usize);
+        let n = k + 6;
+        let params = RegisterParams {
+            iterations,
+            pose_every: 1,
+            optimizer: Optimizer::Bfgs,
+            latent_step: 4.0,
+            translation_step: 0.01,
+            rotation_step: 0.05,
+            ..RegisterParams::default()
+        };
+        // f(x) = 0.5 (x - x*)^T Q (x - x*), Q = D (I + 0.3 R R^T) D with unit diagonal
+        // scales D per part (codes, metres, radians).
+        let mut rng = Rng::new(7);
+        let target: Vec<f64> = (0..n)
+            .map(|i| match i {
+                _ if i < k => rng.range(-0.6, 0.6),
+                _ if i < k + 3 => rng.range(-0.06, 0.06),
+                _ => rng.range(-0.1, 0.1),
+            })
+            .collect();
+        let target = {
+            let mut t = target;
+            t[k + 2] = 0.0;
+            t
+        };
+        let r: Vec<Vec<f64>> = (0..n)
+            .map(|_| (0..n).map(|_| rng.range(-1.0, 1.0)).collect())
+            .collect();
+        let scale = |i: usize| {
+            if i < k {
+                1.0
+            } else if i < k + 3 {
+                30.0
+            } else {
+                5.0
+            }
+        };
+        let q: Vec<Vec<f64>> = (0..n)
+            .map(|i| {
+                (0..n)
+                    .map(|j| {
+                        let rr: f64 = (0..n).map(|c| r[i][c] * r[j][c]).sum();
+                        scale(i) * scale(j) * (if i == j { 1.0 } else { 0.0 } + 0.3 * rr)
+                    })
+                    .collect()
+            })
+            .collect();
+        // Plus a quartic in the code, so that some steps overshoot and are halved.
+        let evaluate = |x: &[f64]| -> (f64, Vec<f64>) {
+            let e: Vec<f64> = (0..n).map(|i| x[i] - target[i]).collect();
+            let mut g: Vec<f64> = (0..n)
+                .map(|i| (0..n).map(|j| q[i][j] * e[j]).sum())
+                .collect();
+            let code: f64 = e[..k].iter().map(|v| v * v).sum();
+            for i in 0..k {
+                g[i] += 2.0 * code * e[i];
+            }
+            (
+                0.5 * (0..n)
+                    .map(|i| e[i] * (0..n).map(|j| q[i][j] * e[j]).sum::<f64>())
+                    .sum::<f64>()
+                    + 0.5 * code * code,
+                g,
+            )
+        };
+
+        let start = Pose::new([0.01, -0.02, 0.6], [2.9, 0.3, 0.1]).unwrap();
+        let camera = Camera::new(100.0, 100.0, 32.0, 32.0, 64, 64).unwrap();
+        let views = ViewBuffers::new(
+            &ctx,
+            &[View {
+                camera,
+                pose: start,
+            }],
+        )
+        .unwrap();
+        let mut state =
+            Buffer::from_slice(&ctx, "state", &vec![0f32; State::len(k, iterations)]).unwrap();
+        state.write(0, &[0f32]).unwrap();
+        let mut grad_latent = Buffer::from_slice(&ctx, "grad latent", &vec![0f32; k]).unwrap();
+        let mut grad_pose = Buffer::from_slice(&ctx, "grad pose", &[0f32; 6]).unwrap();
+        let mut stats = Buffer::from_slice(&ctx, "stats", &[0f32; 4]).unwrap();
+        let mut reference = BfgsReference::new(k, [4.0, 0.01, 0.05]);
+        let read_x = |state: &Buffer| -> Vec<f64> {
+            let v = state.read::<f32>().unwrap();
+            let pose = State::pose_x(k, iterations);
+            (0..k)
+                .map(|i| v[State::LATENT + i] as f64)
+                .chain((0..6).map(|i| v[pose + i] as f64))
+                .collect()
+        };
+        for t in 0..iterations {
+            let x = read_x(&state);
+            if t > 0 {
+                for i in 0..n {
+                    let tolerance =
+                        2e-3 * (1.0 + reference.x[i].abs()) * if i < k { 1.0 } else { 0.05 };
+                    assert!(
+                        (x[i] - reference.x[i]).abs() < tolerance,
+                        "iteration {t}, x[{i}]: shader {} reference {}",
+                        x[i],
+                        reference.x[i]
+                    );
+                }
+            }
+            // Feed both the loss and gradient at the shader's point; the shader gets the
+            // rotation gradient for a left increment, J^-T dL/dw.
+            let (loss, g) = evaluate(&x);
+            let w = DVec3::new(x[k + 3], x[k + 4], x[k + 5]);
+            let left = if w.length() > 1e-9 {
+                left_jacobian(w).transpose().inverse() * DVec3::new(g[k + 3], g[k + 4], g[k + 5])
+            } else {
+                DVec3::new(g[k + 3], g[k + 4], g[k + 5])
+            };
+            stats.write(0, &[0.0f32, 0.0, 0.0, loss as f32]).unwrap();
+            grad_latent
+                .write(0, &g[..k].iter().map(|&v| v as f32).collect::<Vec<_>>())
+                .unwrap();
+            let pose_grad = [g[k], g[k + 1], g[k + 2], left.x, left.y, left.z].map(|v| v as f32);
+            grad_pose.write(0, &pose_grad).unwrap();
+            let mut rec = Recorder::new(&ctx).unwrap();
+            rec.bind_compute(&registrar.bfgs);
+            rec.push_compute_bindings(
+                &registrar.bfgs,
+                &[
+                    Binding::buffer(&state),
+                    Binding::buffer(&grad_latent),
+                    Binding::buffer(&grad_pose),
+                    Binding::buffer(&stats),
+                    Binding::buffer(views.views()),
+                ],
+            );
+            rec.compute_constants(&registrar.bfgs, &OptimizerConstants::new(k, &params, false));
+            rec.dispatch(1, 1, 1);
+            ctx.submit_and_wait(rec).unwrap();
+            reference.step(loss, g);
+        }
+        // Both branches of the shader ran, it converges, and the view holds the pose of the
+        // last point.
+        assert!(
+            reference.capped > 0 && reference.halved > 0,
+            "capped {} and halved {} steps",
+            reference.capped,
+            reference.halved
+        );
+        let x = read_x(&state);
+        let (first, _) = evaluate(&vec![0.0; n]);
+        let (last, _) = evaluate(&reference.accepted);
+        assert!(last < 1e-3 * first, "loss {first} -> {last}");
+        let pose = read_pose(&views).unwrap();
+        let w = DVec3::new(x[k + 3], x[k + 4], x[k + 5]);
+        let want_r = DMat3::from_quat(glam::DQuat::from_scaled_axis(w)) * start.rotation_matrix();
+        let want_t = start.translation + DVec3::new(x[k], x[k + 1], x[k + 2]);
+        assert!(
+            (pose.translation - want_t).length() < 1e-5,
+            "{pose:?} vs {want_t}"
+        );
+        let dr = pose.rotation_matrix() - want_r;
+        let off = dr.x_axis.length() + dr.y_axis.length() + dr.z_axis.length();
+        assert!(off < 1e-4, "rotation off by {off}");
+        ctx.check_validation().unwrap();
+    }
 
     /// BFGS's code coordinates: the columns of B A are orthogonal in vertex space, each as
     /// long as the RMS training deformation; SGD's are the training standard deviations.
