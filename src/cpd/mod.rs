@@ -24,7 +24,7 @@ use glam::DVec3;
 
 use crate::error::{Error, Result};
 use crate::gpu::{
-    spirv, Binding, BindingKind, Buffer, BufferKind, ComputePipeline, Context, Recorder,
+    spirv, Binding, BindingKind, Buffer, BufferKind, ComputePipeline, Context, Groups, Recorder,
 };
 use linalg::Matrix;
 
@@ -484,20 +484,18 @@ impl Backend for GpuBackend<'_> {
         }
         let p = self.pipelines;
         let mut rec = Recorder::new(self.ctx)?;
-        rec.bind_compute(&p.denominator);
-        rec.push_compute_bindings(
+        rec.run_compute(
             &p.denominator,
             &[
                 Binding::buffer(&self.moving),
                 Binding::buffer(&self.target),
                 Binding::buffer(&self.log_den),
             ],
+            &constants,
+            Groups::Count(n.div_ceil(64), 1, 1),
         );
-        rec.compute_constants(&p.denominator, &constants);
-        rec.dispatch(n.div_ceil(64), 1, 1);
         rec.memory_barrier();
-        rec.bind_compute(&p.accumulate);
-        rec.push_compute_bindings(
+        rec.run_compute(
             &p.accumulate,
             &[
                 Binding::buffer(&self.moving),
@@ -505,9 +503,9 @@ impl Backend for GpuBackend<'_> {
                 Binding::buffer(&self.log_den),
                 Binding::buffer(&self.sums),
             ],
+            &constants,
+            Groups::Count(m.div_ceil(64), 1, 1),
         );
-        rec.compute_constants(&p.accumulate, &constants);
-        rec.dispatch(m.div_ceil(64), 1, 1);
         self.ctx.submit_and_wait(rec)?;
         let sums = self.sums.read_range::<[f32; 4]>(0, m as usize)?;
         let log_den = self.log_den.read_range::<f32>(0, n as usize)?;
@@ -550,17 +548,16 @@ impl Backend for GpuBackend<'_> {
             self.columns.write(0, &columns)?;
             let p = self.pipelines;
             let mut rec = Recorder::new(self.ctx)?;
-            rec.bind_compute(&p.gauss);
-            rec.push_compute_bindings(
+            rec.run_compute(
                 &p.gauss,
                 &[
                     Binding::buffer(&self.source_points),
                     Binding::buffer(&self.columns),
                     Binding::buffer(&self.product),
                 ],
+                &constants,
+                Groups::Count((m as u32).div_ceil(64), 1, 1),
             );
-            rec.compute_constants(&p.gauss, &constants);
-            rec.dispatch((m as u32).div_ceil(64), 1, 1);
             self.ctx.submit_and_wait(rec)?;
             let product = self.product.read_range::<[f32; 16]>(0, m)?;
             for (i, row) in product.iter().enumerate() {

@@ -16,7 +16,7 @@ use bytemuck::{Pod, Zeroable};
 
 use crate::error::{Error, Result};
 use crate::gpu::{
-    spirv, Binding, BindingKind, Buffer, BufferKind, ComputePipeline, Context, ImageState,
+    spirv, Binding, BindingKind, Buffer, BufferKind, ComputePipeline, Context, Groups, ImageState,
     Recorder, Timestamps,
 };
 use crate::loss::{DistanceField, Loss};
@@ -363,46 +363,45 @@ impl Scene {
             Binding::buffer(&self.work_count),
         ];
         let (w, h, n) = (self.views.width(), self.views.height(), self.views.count());
-        rec.bind_compute(&renderer.classify);
-        rec.push_compute_bindings(&renderer.classify, &bindings);
-        rec.compute_constants(&renderer.classify, &constants);
-        rec.dispatch(w.div_ceil(8), h.div_ceil(8), n);
+        let work = Groups::Indirect(&self.work_count, 4);
+        rec.run_compute(
+            &renderer.classify,
+            &bindings,
+            &constants,
+            Groups::Count(w.div_ceil(8), h.div_ceil(8), n),
+        );
         rec.memory_barrier();
 
-        rec.bind_compute(&renderer.work_args);
-        rec.push_compute_bindings(&renderer.work_args, &[Binding::buffer(&self.work_count)]);
-        rec.dispatch(1, 1, 1);
+        rec.run_compute(
+            &renderer.work_args,
+            &[Binding::buffer(&self.work_count)],
+            &(),
+            Groups::Count(1, 1, 1),
+        );
         rec.memory_barrier();
 
-        rec.bind_compute(&renderer.antialias);
-        rec.push_compute_bindings(&renderer.antialias, &bindings);
-        rec.compute_constants(&renderer.antialias, &constants);
-        rec.dispatch_indirect(&self.work_count, 4);
+        rec.run_compute(&renderer.antialias, &bindings, &constants, work);
         rec.memory_barrier();
 
-        rec.bind_compute(&renderer.finalize);
-        rec.push_compute_bindings(
+        rec.run_compute(
             &renderer.finalize,
             &[
                 Binding::buffer(&self.stats),
                 Binding::buffer(&self.partials),
             ],
+            &[self.loss.code(), self.partial_slots],
+            Groups::Count(1, 1, n),
         );
-        rec.compute_constants(&renderer.finalize, &[self.loss.code(), self.partial_slots]);
-        rec.dispatch(1, 1, n);
         rec.memory_barrier();
         if let Some(t) = timing {
             rec.timestamp(t, 1);
         }
 
-        rec.bind_compute(&renderer.backward);
-        rec.push_compute_bindings(&renderer.backward, &bindings);
-        rec.compute_constants(&renderer.backward, &constants);
-        rec.dispatch_indirect(&self.work_count, 4);
+        rec.run_compute(&renderer.backward, &bindings, &constants, work);
         rec.memory_barrier();
 
-        rec.bind_compute(&renderer.pose);
-        rec.push_compute_bindings(
+        let vertices = self.mesh.vertex_count();
+        rec.run_compute(
             &renderer.pose,
             &[
                 Binding::buffer(self.mesh.positions()),
@@ -411,9 +410,9 @@ impl Scene {
                 Binding::buffer(&self.grad_object),
                 Binding::buffer(&self.grad_pose),
             ],
+            &vertices,
+            Groups::Count(vertices.div_ceil(64).clamp(1, 256), 1, n),
         );
-        rec.compute_constants(&renderer.pose, &self.mesh.vertex_count());
-        rec.dispatch(self.mesh.vertex_count().div_ceil(64).clamp(1, 256), 1, n);
         rec.memory_barrier();
         if let Some(t) = timing {
             rec.timestamp(t, 2);

@@ -19,6 +19,16 @@ pub struct RenderTarget<'a> {
     pub depth: Option<(&'a Image, u32, f32)>,
 }
 
+/// The workgroups of a compute pass.
+#[derive(Clone, Copy)]
+pub enum Groups<'a> {
+    /// Workgroup counts in x, y and z.
+    Count(u32, u32, u32),
+    /// Counts (3 x u32) that an earlier pass wrote into the buffer at a byte offset (a
+    /// multiple of 4).
+    Indirect(&'a Buffer, u64),
+}
+
 /// A command buffer being recorded.
 pub struct Recorder {
     ctx: Context,
@@ -300,6 +310,9 @@ impl Recorder {
             pipeline.push_constant_bytes,
             "push constants must match the pipeline's declared size"
         );
+        if bytes.is_empty() {
+            return; // a pipeline without push constants
+        }
         // SAFETY: recording state; size matches the layout's range.
         unsafe {
             self.device()
@@ -343,6 +356,24 @@ impl Recorder {
     pub fn dispatch(&mut self, x: u32, y: u32, z: u32) {
         // SAFETY: a compute pipeline is bound.
         unsafe { self.device().cmd_dispatch(self.raw, x, y, z) };
+    }
+
+    /// One compute pass: binds `pipeline`, pushes its bindings (in binding order) and its
+    /// push constants (`&()` for none), and dispatches `groups`.
+    pub fn run_compute<T: bytemuck::Pod>(
+        &mut self,
+        pipeline: &ComputePipeline,
+        bindings: &[Binding],
+        constants: &T,
+        groups: Groups,
+    ) {
+        self.bind_compute(pipeline);
+        self.push_compute_bindings(pipeline, bindings);
+        self.compute_constants(pipeline, constants);
+        match groups {
+            Groups::Count(x, y, z) => self.dispatch(x, y, z),
+            Groups::Indirect(args, offset) => self.dispatch_indirect(args, offset),
+        }
     }
 
     pub fn copy_buffer(

@@ -26,7 +26,7 @@ mod pipeline;
 mod timestamps;
 
 pub use buffer::{Buffer, BufferKind};
-pub use command::{Recorder, Recording, RenderTarget};
+pub use command::{Groups, Recorder, Recording, RenderTarget};
 pub use context::{Context, ContextOptions, DeviceInfo};
 pub use image::{Format, Image, ImageState};
 pub use pipeline::{Binding, BindingKind, ComputePipeline, GraphicsPipeline, GraphicsPipelineDesc};

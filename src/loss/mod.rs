@@ -12,7 +12,7 @@ use bytemuck::{Pod, Zeroable};
 
 use crate::error::{Error, Result};
 use crate::gpu::{
-    spirv, Binding, BindingKind, Buffer, BufferKind, ComputePipeline, Context, Recorder,
+    spirv, Binding, BindingKind, Buffer, BufferKind, ComputePipeline, Context, Groups, Recorder,
 };
 
 const SEED: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/distance_seed.comp.spv"));
@@ -150,13 +150,12 @@ impl DistanceField {
             height,
             step: 0,
         };
-        rec.bind_compute(&self.seed);
-        rec.push_compute_bindings(
+        rec.run_compute(
             &self.seed,
             &[Binding::buffer(masks), Binding::buffer(scratch[0])],
+            &constants,
+            Groups::Count(groups.0, groups.1, 2 * views),
         );
-        rec.compute_constants(&self.seed, &constants);
-        rec.dispatch(groups.0, groups.1, 2 * views);
         rec.memory_barrier();
 
         let mut steps = Vec::new();
@@ -167,33 +166,31 @@ impl DistanceField {
         }
         // Two more passes at steps 2 and 1 mend most of jump flooding's errors (JFA+2).
         steps.extend([2, 1]);
-        rec.bind_compute(&self.jump);
         let mut current = 0;
         for step in steps {
             constants.step = step as i32;
-            rec.push_compute_bindings(
+            rec.run_compute(
                 &self.jump,
                 &[
                     Binding::buffer(scratch[current]),
                     Binding::buffer(scratch[1 - current]),
                 ],
+                &constants,
+                Groups::Count(groups.0, groups.1, 2 * views),
             );
-            rec.compute_constants(&self.jump, &constants);
-            rec.dispatch(groups.0, groups.1, 2 * views);
             rec.memory_barrier();
             current = 1 - current;
         }
-        rec.bind_compute(&self.finish);
-        rec.push_compute_bindings(
+        rec.run_compute(
             &self.finish,
             &[
                 Binding::buffer(masks),
                 Binding::buffer(scratch[current]),
                 Binding::buffer(distance),
             ],
+            &constants,
+            Groups::Count(groups.0, groups.1, views),
         );
-        rec.compute_constants(&self.finish, &constants);
-        rec.dispatch(groups.0, groups.1, views);
         rec.memory_barrier();
         Ok(())
     }

@@ -19,7 +19,8 @@ use crate::cpd::linalg::{self, Matrix};
 use crate::diff::{DiffRenderer, Scene, SceneDesc};
 use crate::error::{Error, Result};
 use crate::gpu::{
-    spirv, Binding, BindingKind, Buffer, ComputePipeline, Context, Recorder, Recording, Timestamps,
+    spirv, Binding, BindingKind, Buffer, ComputePipeline, Context, Groups, Recorder, Recording,
+    Timestamps,
 };
 use crate::loss::Loss;
 use crate::raster::View;
@@ -448,8 +449,7 @@ impl Registrar {
             rec.reset_timestamps(outer);
             rec.timestamp(outer, 0);
         }
-        rec.bind_compute(&self.deform);
-        rec.push_compute_bindings(
+        rec.run_compute(
             &self.deform,
             &[
                 Binding::buffer(&task.base),
@@ -457,14 +457,13 @@ impl Registrar {
                 Binding::buffer(&task.state),
                 Binding::buffer(scene.mesh().positions()),
             ],
+            &DeformConstants {
+                vertex_count: m as u32,
+                dims: k as u32,
+                latent_at: State::LATENT as u32,
+            },
+            Groups::Count((m as u32).div_ceil(64), 1, 1),
         );
-        let deform_constants = DeformConstants {
-            vertex_count: m as u32,
-            dims: k as u32,
-            latent_at: State::LATENT as u32,
-        };
-        rec.compute_constants(&self.deform, &deform_constants);
-        rec.dispatch((m as u32).div_ceil(64), 1, 1);
         rec.memory_barrier();
         if let Some((outer, _)) = timing {
             rec.timestamp(outer, 1);
@@ -475,24 +474,22 @@ impl Registrar {
         }
         rec.fill_buffer(&task.grad_latent, 0);
         rec.memory_barrier();
-        rec.bind_compute(&self.latent_gradient);
-        rec.push_compute_bindings(
+        rec.run_compute(
             &self.latent_gradient,
             &[
                 Binding::buffer(&task.basis),
                 Binding::buffer(scene.vertex_gradient()),
                 Binding::buffer(&task.grad_latent),
             ],
+            &[m as u32, k as u32],
+            Groups::Count(1, 1, k as u32),
         );
-        rec.compute_constants(&self.latent_gradient, &[m as u32, k as u32]);
-        rec.dispatch(1, 1, k as u32);
         rec.memory_barrier();
         let optimizer = match params.optimizer {
             Optimizer::Sgd | Optimizer::Adam => &self.optimizer,
             Optimizer::Bfgs => &self.bfgs,
         };
-        rec.bind_compute(optimizer);
-        rec.push_compute_bindings(
+        rec.run_compute(
             optimizer,
             &[
                 Binding::buffer(&task.state),
@@ -501,9 +498,9 @@ impl Registrar {
                 Binding::buffer(scene.loss_stats()),
                 Binding::buffer(scene.views().views()),
             ],
+            &OptimizerConstants::new(k, params, pose_only),
+            Groups::Count(1, 1, 1),
         );
-        rec.compute_constants(optimizer, &OptimizerConstants::new(k, params, pose_only));
-        rec.dispatch(1, 1, 1);
         rec.memory_barrier();
         if let Some((outer, _)) = timing {
             rec.timestamp(outer, 3);
@@ -1021,8 +1018,7 @@ mod tests {
             let pose_grad = [g[k], g[k + 1], g[k + 2], left.x, left.y, left.z].map(|v| v as f32);
             grad_pose.write(0, &pose_grad).unwrap();
             let mut rec = Recorder::new(&ctx).unwrap();
-            rec.bind_compute(&registrar.bfgs);
-            rec.push_compute_bindings(
+            rec.run_compute(
                 &registrar.bfgs,
                 &[
                     Binding::buffer(&state),
@@ -1031,9 +1027,9 @@ mod tests {
                     Binding::buffer(&stats),
                     Binding::buffer(views.views()),
                 ],
+                &OptimizerConstants::new(k, &params, false),
+                Groups::Count(1, 1, 1),
             );
-            rec.compute_constants(&registrar.bfgs, &OptimizerConstants::new(k, &params, false));
-            rec.dispatch(1, 1, 1);
             ctx.submit_and_wait(rec).unwrap();
             reference.step(loss, g);
         }
