@@ -33,7 +33,7 @@ layout(push_constant, std430) uniform Constants {
     float translation_step;  // metres
     float rotation_step;     // radians
     uint max_iterations;
-    uint shape_after;    // iterations that move the pose alone before the shape moves
+    uint pose_only;      // 1: the latent code stays where it is (pose alignment)
 } pc;
 
 const uint ITERATION = 0u;
@@ -79,10 +79,13 @@ mat3 left_jacobian(vec3 w) {
     return mat3(1.0) + (1.0 - cos(angle)) / a2 * k + (angle - sin(angle)) / (a2 * angle) * k * k;
 }
 
-// Which parts move this iteration: the latent code after `shape_after` iterations, the
-// pose whenever it is optimised.
-bool moves(uint i, uint t) {
-    if (i < pc.dims) return t >= pc.shape_after;
+// Which part of x coordinate i is in: 0 the code, 1 the translation, 2 the rotation.
+uint part_of(uint i) { return i < pc.dims ? 0u : (i < pc.dims + 3u ? 1u : 2u); }
+
+// Whether coordinate i moves: the code unless the pose is aligned alone, the pose when it
+// is optimised (z only when asked for).
+bool moves(uint i) {
+    if (i < pc.dims) return pc.pose_only == 0u;
     if (pc.pose_every == 0u) return false;
     return i != pc.dims + 2u || pc.optimize_z != 0u;
 }
@@ -111,20 +114,18 @@ void main() {
     vec3 gw = transpose(left_jacobian(w)) * vec3(grad_pose[3], grad_pose[4], grad_pose[5]);
     for (uint i = 0u; i < count; ++i) {
         float v = i < pc.dims ? grad_latent[i] : (i < pc.dims + 3u ? grad_pose[i - pc.dims] : gw[i - pc.dims - 3u]);
-        g[i] = moves(i, t) ? v : 0.0;
+        g[i] = moves(i) ? v : 0.0;
     }
 
-    // A part that starts moving now gets its diagonal of H: first step of the set length.
-    float parts[3] = float[3](0.0, 0.0, 0.0);
-    for (uint i = 0u; i < count; ++i) {
-        uint part = i < pc.dims ? 0u : (i < pc.dims + 3u ? 1u : 2u);
-        parts[part] += g[i] * g[i];
-    }
+    // H starts as the diagonal that makes each part's first step the set length.
     float steps[3] = float[3](pc.latent_step, pc.translation_step, pc.rotation_step);
-    for (uint i = 0u; i < count; ++i) {
-        uint part = i < pc.dims ? 0u : (i < pc.dims + 3u ? 1u : 2u);
-        bool starts = moves(i, t) && (t == 0u || !moves(i, t - 1u));
-        if (starts) set_h(i, i, parts[part] > 0.0 ? steps[part] / sqrt(parts[part]) : 0.0);
+    if (t == 0u) {
+        float parts[3] = float[3](0.0, 0.0, 0.0);
+        for (uint i = 0u; i < count; ++i) parts[part_of(i)] += g[i] * g[i];
+        for (uint i = 0u; i < count; ++i) {
+            float norm = sqrt(parts[part_of(i)]);
+            if (moves(i)) set_h(i, i, norm > 0.0 ? steps[part_of(i)] / norm : 0.0);
+        }
     }
 
     float accepted_loss = state[accepted_loss_at()];
@@ -179,8 +180,7 @@ void main() {
         for (uint i = 0u; i < count; ++i) {
             d[i] = 0.0;
             for (uint j = 0u; j < count; ++j) d[i] -= h(i, j) * g[j];
-            uint part = i < pc.dims ? 0u : (i < pc.dims + 3u ? 1u : 2u);
-            lengths[part] += d[i] * d[i];
+            lengths[part_of(i)] += d[i] * d[i];
         }
         float scale = 1.0;
         for (uint p = 0u; p < 3u; ++p) {

@@ -27,7 +27,7 @@ layout(push_constant, std430) uniform Constants {
     float translation_step;  // metres
     float rotation_step;     // radians
     uint max_iterations;
-    uint shape_after;    // iterations that update the pose alone before the shape moves
+    uint pose_only;      // 1: the latent code stays where it is (pose alignment)
 } pc;
 
 // Offsets into `state`.
@@ -54,14 +54,15 @@ mat3 rodrigues(vec3 w) {
 void main() {
     uint t = uint(state[ITERATION]);
     if (t < pc.max_iterations) state[losses_at() + t] = stats[3];
-    float decay = pow(pc.decay, float(t - min(t, pc.shape_after)));
+    float decay = pow(pc.decay, float(t));
+    bool shape = pc.pose_only == 0u;
 
     // Latent code.
     float norm = 0.0;
     for (uint j = 0u; j < pc.dims; ++j) norm += grad_latent[j] * grad_latent[j];
     norm = sqrt(norm);
-    if (t == pc.shape_after) state[LR_LATENT] = norm > 0.0 ? pc.latent_step / norm : 0.0;
-    for (uint j = 0u; j < pc.dims && t >= pc.shape_after; ++j) {
+    if (t == 0u) state[LR_LATENT] = norm > 0.0 ? pc.latent_step / norm : 0.0;
+    for (uint j = 0u; j < pc.dims && shape; ++j) {
         float g = grad_latent[j];
         float v = pc.momentum * state[velocity_at() + j] + g;
         state[velocity_at() + j] = v;
@@ -70,8 +71,8 @@ void main() {
             float m2 = 0.999 * state[second_moment_at() + j] + 0.001 * g * g;
             state[second_moment_at() + j] = m2;
             float m1 = v * (1.0 - pc.momentum);
-            float bias1 = 1.0 - pow(pc.momentum, float(t - pc.shape_after + 1u));
-            float bias2 = 1.0 - pow(0.999, float(t - pc.shape_after + 1u));
+            float bias1 = 1.0 - pow(pc.momentum, float(t + 1u));
+            float bias2 = 1.0 - pow(0.999, float(t + 1u));
             step = pc.latent_step * decay * (m1 / bias1) / (sqrt(m2 / bias2) + 1e-12);
         }
         // Projected step: codes stay within 3 standard deviations of the training set
@@ -82,8 +83,8 @@ void main() {
         if (t < pc.max_iterations) state[codes_at() + t * pc.dims + j] = state[LATENT + j];
     }
 
-    // Pose, once every pc.pose_every iterations.
-    bool pose_step = t < pc.shape_after || (t + 1u) % pc.pose_every == 0u;
+    // Pose, once every pc.pose_every iterations (every iteration while aligned alone).
+    bool pose_step = !shape || (t + 1u) % pc.pose_every == 0u;
     if (pc.pose_every > 0u && pose_step) {
         vec3 gt = vec3(grad_pose[0], grad_pose[1], pc.optimize_z != 0u ? grad_pose[2] : 0.0);
         vec3 gr = vec3(grad_pose[3], grad_pose[4], grad_pose[5]);

@@ -149,7 +149,7 @@ struct OptimizerConstants {
     translation_step: f32,
     rotation_step: f32,
     max_iterations: u32,
-    shape_after: u32,
+    pose_only: u32,
 }
 
 /// Offsets of the optimiser state (mirrors `glsl/optimizer.comp` and `glsl/bfgs.comp`).
@@ -197,11 +197,7 @@ impl OptimizerConstants {
             translation_step: params.translation_step as f32,
             rotation_step: params.rotation_step as f32,
             max_iterations: params.iterations as u32,
-            shape_after: if pose_only {
-                params.iterations as u32
-            } else {
-                0
-            },
+            pose_only: pose_only as u32,
         }
     }
 }
