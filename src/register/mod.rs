@@ -47,22 +47,25 @@ pub enum Optimizer {
 }
 
 impl Optimizer {
-    pub fn parse(name: &str) -> Result<Self> {
-        match name {
-            "sgd" => Ok(Self::Sgd),
-            "adam" => Ok(Self::Adam),
-            "bfgs" => Ok(Self::Bfgs),
-            other => Err(Error::InvalidInput(format!(
-                "unknown optimizer {other:?} (sgd, adam or bfgs)"
-            ))),
-        }
-    }
-
     pub fn name(self) -> &'static str {
         match self {
             Self::Sgd => "sgd",
             Self::Adam => "adam",
             Self::Bfgs => "bfgs",
+        }
+    }
+}
+
+impl std::str::FromStr for Optimizer {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "sgd" => Ok(Self::Sgd),
+            "adam" => Ok(Self::Adam),
+            "bfgs" => Ok(Self::Bfgs),
+            other => Err(Error::InvalidInput(format!(
+                "unknown optimizer '{other}' (sgd, adam, bfgs)"
+            ))),
         }
     }
 }

@@ -11,6 +11,7 @@ use std::time::Instant;
 use anyhow::{bail, Context as _, Result};
 use glam::DVec3;
 
+use vkdr::camera::parse_size;
 use vkdr::dataset::{instance, Rng};
 use vkdr::eval::{self, surface_error, EvalSettings};
 use vkdr::gpu::Context;
@@ -23,21 +24,38 @@ use vkdr::Camera;
 
 use crate::bench::median;
 
+#[derive(clap::Args)]
 pub struct Args {
+    #[arg(long, default_value = "bottle")]
     pub category: String,
+    /// Midpoint subdivisions of the canonical (each about 4x the vertices; the bottle
+    /// has 226, so 3 gives 14 338).
+    #[arg(long, default_value_t = 3)]
     pub subdivide: u32,
-    pub width: u32,
-    pub height: u32,
+    /// Image size WxH.
+    #[arg(long, default_value = "640x480")]
+    pub size: String,
+    /// Iterations of pose and shape, after the pose alignment's.
+    #[arg(long, default_value_t = 30)]
     pub iterations: usize,
+    /// Timed registrations (after one warm-up); medians are reported.
+    #[arg(long, default_value_t = 5)]
     pub repeats: usize,
+    /// Registrations in the throughput comparison.
+    #[arg(long, default_value_t = 4)]
     pub batch: usize,
+    #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Reuse the space.npz of an earlier run with the same category, subdivision and seed.
+    #[arg(long)]
     pub space: Option<PathBuf>,
+    #[arg(long)]
     pub out: PathBuf,
 }
 
 pub fn run(ctx: &Context, args: &Args) -> Result<()> {
     let started = Instant::now();
+    let (width, height) = parse_size(&args.size)?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     let device = format!("{} ({})", ctx.info().name, ctx.info().driver_info);
@@ -108,14 +126,14 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
 
     // The camera of the evaluation at twice the resolution, and one noisy start per batch
     // slot.
-    let scale = args.width as f64 / settings.camera.width as f64;
+    let scale = width as f64 / settings.camera.width as f64;
     let camera = Camera::new(
         settings.camera.fx * scale,
         settings.camera.fy * scale,
-        0.5 * args.width as f64,
-        0.5 * args.height as f64,
-        args.width,
-        args.height,
+        0.5 * width as f64,
+        0.5 * height as f64,
+        width,
+        height,
     )?;
     let pose = eval::view_pose(
         rng.range(0.0, std::f64::consts::TAU),
@@ -220,8 +238,8 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
         category = args.category,
         faces = space.canonical.triangle_count(),
         dims = space.dims(),
-        w = args.width,
-        h = args.height,
+        w = width,
+        h = height,
         tn = 100.0 * settings.translation_noise,
         rn = settings.rotation_noise.to_degrees(),
         it = args.iterations,
@@ -257,8 +275,8 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
          \"batch\": {}, \"sequential_ms\": {sequential:.3}, \"batched_ms\": {batched:.3}, \"oracle_m\": {oracle:e}, \
          \"curve\": [{}]}}\n",
         args.category,
-        args.width,
-        args.height,
+        width,
+        height,
         args.iterations,
         pass.deform,
         pass.forward,
@@ -275,10 +293,7 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
     write_atomically(&args.out.join("bench_register.json"), json.as_bytes())?;
     let name = device.split(" (").next().unwrap_or(&device);
     let plot = Plot::new(
-        &format!(
-            "registration {}x{}, {m} vertices, {name}",
-            args.width, args.height
-        ),
+        &format!("registration {}x{}, {m} vertices, {name}", width, height),
         "cumulative time (ms)",
         "error / oracle error",
     )

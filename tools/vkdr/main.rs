@@ -59,34 +59,9 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
-    /// Time one registration at benchmark size (30 iterations, 640x480, ~1e4 vertices):
+    /// Time one registration at benchmark size (640x480, ~1e4 vertices, pose noise):
     /// wall time, device time per pass, batched throughput, speed against error.
-    BenchRegister {
-        #[arg(long, default_value = "bottle")]
-        category: String,
-        /// Midpoint subdivisions of the canonical (each about 4x the vertices; the bottle
-        /// has 226, so 3 gives 14 338).
-        #[arg(long, default_value_t = 3)]
-        subdivide: u32,
-        /// Image size WxH.
-        #[arg(long, default_value = "640x480")]
-        size: String,
-        #[arg(long, default_value_t = 30)]
-        iterations: usize,
-        /// Timed registrations (after one warm-up); medians are reported.
-        #[arg(long, default_value_t = 5)]
-        repeats: usize,
-        /// Registrations in the throughput comparison.
-        #[arg(long, default_value_t = 4)]
-        batch: usize,
-        #[arg(long, default_value_t = 0)]
-        seed: u64,
-        /// Reuse the space.npz of an earlier run with the same category, subdivision and seed.
-        #[arg(long)]
-        space: Option<PathBuf>,
-        #[arg(long)]
-        out: PathBuf,
-    },
+    BenchRegister(bench_register::Args),
     /// Non-rigid Coherent Point Drift of SOURCE onto TARGET (OBJ vertices or N x 3 .npy).
     Cpd {
         source: PathBuf,
@@ -129,46 +104,7 @@ enum Command {
     /// Register a shape space to an observed mask (render-and-compare on the device).
     Register(RegisterArgs),
     /// The paper's Table 1 on a dataset: oracle, known pose and pose noise per test instance.
-    Eval {
-        /// A dataset in the layout of `vkdr gen-dataset`.
-        #[arg(long)]
-        dataset: PathBuf,
-        #[arg(long, default_value_t = 10)]
-        trials: usize,
-        #[arg(long, default_value_t = 0)]
-        seed: u64,
-        /// Only these categories (comma-separated).
-        #[arg(long)]
-        categories: Option<String>,
-        /// Iterations with pose noise, after the alignment's.
-        #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.iterations)]
-        noise_iterations: usize,
-        /// Iterations with the pose known.
-        #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().known_pose.iterations)]
-        known_iterations: usize,
-        /// Loss of both conditions: mse | iou | distance (default: each condition's own).
-        #[arg(long)]
-        loss: Option<String>,
-        /// Length of the first latent step, in training standard deviations.
-        #[arg(long, default_value_t = 0.5)]
-        latent_step: f64,
-        /// Optimiser of both conditions: sgd | adam | bfgs (default: each condition's own).
-        #[arg(long)]
-        optimizer: Option<String>,
-        /// First pose steps with pose noise: translation (m) and rotation (rad).
-        #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.translation_step)]
-        translation_step: f64,
-        #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.rotation_step)]
-        rotation_step: f64,
-        /// With pose noise: update the pose once every this many iterations...
-        #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.pose_every)]
-        pose_every: usize,
-        /// With pose noise: iterations that first align the pose alone (distance loss).
-        #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.align)]
-        align: usize,
-        #[arg(long)]
-        out: PathBuf,
-    },
+    Eval(EvalArgs),
     /// The quick start: generate a dataset, build a shape space, register a held-out
     /// instance from a rendered mask with pose noise, print its Table-1 row, write pictures.
     Demo {
@@ -279,6 +215,48 @@ struct RegisterArgs {
 }
 
 #[derive(clap::Args)]
+struct EvalArgs {
+    /// A dataset in the layout of `vkdr gen-dataset`.
+    #[arg(long)]
+    dataset: PathBuf,
+    #[arg(long, default_value_t = 10)]
+    trials: usize,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Only these categories (comma-separated).
+    #[arg(long)]
+    categories: Option<String>,
+    /// Iterations with pose noise, after the alignment's.
+    #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.iterations)]
+    noise_iterations: usize,
+    /// Iterations with the pose known.
+    #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().known_pose.iterations)]
+    known_iterations: usize,
+    /// Loss of both conditions: mse | iou | distance (default: each condition's own).
+    #[arg(long)]
+    loss: Option<String>,
+    /// Length of the first latent step, in training standard deviations.
+    #[arg(long, default_value_t = 0.5)]
+    latent_step: f64,
+    /// Optimiser of both conditions: sgd | adam | bfgs (default: each condition's own).
+    #[arg(long)]
+    optimizer: Option<String>,
+    /// First pose steps with pose noise: translation (m) and rotation (rad).
+    #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.translation_step)]
+    translation_step: f64,
+    #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.rotation_step)]
+    rotation_step: f64,
+    /// With pose noise: update the pose once every this many iterations...
+    #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.pose_every)]
+    pose_every: usize,
+    /// With pose noise: iterations that first align the pose alone (distance loss).
+    #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.align)]
+    align: usize,
+    #[arg(long)]
+    out: PathBuf,
+}
+
+#[derive(clap::Args)]
 struct GradArgs {
     /// OBJ file (vertex_grad.npy follows its vertex order).
     mesh: PathBuf,
@@ -308,33 +286,9 @@ fn main() {
             loss,
             out,
         } => bench(size, repeats, max_vertices, &loss, &out),
-        Command::BenchRegister {
-            category,
-            subdivide,
-            size,
-            iterations,
-            repeats,
-            batch,
-            seed,
-            space,
-            out,
-        } => parse_size(&size)
+        Command::BenchRegister(args) => Context::new()
             .map_err(anyhow::Error::from)
-            .and_then(|(width, height)| {
-                let args = bench_register::Args {
-                    category,
-                    subdivide,
-                    width,
-                    height,
-                    iterations,
-                    repeats,
-                    batch,
-                    seed,
-                    space,
-                    out,
-                };
-                bench_register::run(&Context::new()?, &args)
-            }),
+            .and_then(|ctx| bench_register::run(&ctx, &args)),
         Command::Demo { out } => demo(&out),
         Command::GenDataset {
             out,
@@ -343,48 +297,7 @@ fn main() {
             test,
         } => gen_dataset(&out, seed, train, test),
         Command::Register(args) => register(&args),
-        Command::Eval {
-            dataset,
-            trials,
-            seed,
-            categories,
-            noise_iterations,
-            known_iterations,
-            loss,
-            latent_step,
-            optimizer,
-            translation_step,
-            rotation_step,
-            pose_every,
-            align,
-            out,
-        } => {
-            let mut settings = vkdr::eval::EvalSettings {
-                trials: trials.max(2),
-                seed,
-                ..Default::default()
-            };
-            settings.pose_noise.iterations = noise_iterations;
-            settings.known_pose.iterations = known_iterations;
-            settings.pose_noise.translation_step = translation_step;
-            settings.pose_noise.rotation_step = rotation_step;
-            settings.pose_noise.pose_every = pose_every;
-            settings.pose_noise.align = align;
-            let loss = loss.map(|l| l.parse::<vkdr::loss::Loss>()).transpose();
-            let optimizer = optimizer
-                .map(|o| vkdr::register::Optimizer::parse(&o))
-                .transpose();
-            loss.and_then(|loss| Ok((loss, optimizer?)))
-                .map_err(anyhow::Error::from)
-                .and_then(|(loss, optimizer)| {
-                    for params in [&mut settings.known_pose, &mut settings.pose_noise] {
-                        params.latent_step = latent_step;
-                        params.optimizer = optimizer.unwrap_or(params.optimizer);
-                        params.loss = loss.unwrap_or(params.loss);
-                    }
-                    eval(&dataset, settings, categories.as_deref(), &out)
-                })
-        }
+        Command::Eval(args) => eval_command(&args),
         Command::ShapeSpace {
             category_dir,
             canonical,
@@ -648,14 +561,11 @@ fn register(args: &RegisterArgs) -> Result<()> {
     } else {
         settings.known_pose
     };
-    let optimizer = args
-        .optimizer
-        .as_deref()
-        .map(vkdr::register::Optimizer::parse);
+    let optimizer = args.optimizer.as_deref().map(str::parse).transpose()?;
     let params = vkdr::register::RegisterParams {
         iterations: args.iterations.unwrap_or(base.iterations),
         loss: args.loss.parse()?,
-        optimizer: optimizer.transpose()?.unwrap_or(base.optimizer),
+        optimizer: optimizer.unwrap_or(base.optimizer),
         ..base
     };
     let result = eval_cmd::register(&ctx, &space, &observed, view, &params, &args.out)?;
@@ -677,6 +587,35 @@ fn register(args: &RegisterArgs) -> Result<()> {
         args.out.display()
     );
     Ok(())
+}
+
+/// `vkdr eval`: the default settings with the flags' changes.
+fn eval_command(args: &EvalArgs) -> Result<()> {
+    let mut settings = vkdr::eval::EvalSettings {
+        trials: args.trials.max(2),
+        seed: args.seed,
+        ..Default::default()
+    };
+    settings.pose_noise.iterations = args.noise_iterations;
+    settings.known_pose.iterations = args.known_iterations;
+    settings.pose_noise.translation_step = args.translation_step;
+    settings.pose_noise.rotation_step = args.rotation_step;
+    settings.pose_noise.pose_every = args.pose_every;
+    settings.pose_noise.align = args.align;
+    let loss: Option<vkdr::loss::Loss> = args.loss.as_deref().map(str::parse).transpose()?;
+    let optimizer: Option<vkdr::register::Optimizer> =
+        args.optimizer.as_deref().map(str::parse).transpose()?;
+    for params in [&mut settings.known_pose, &mut settings.pose_noise] {
+        params.latent_step = args.latent_step;
+        params.optimizer = optimizer.unwrap_or(params.optimizer);
+        params.loss = loss.unwrap_or(params.loss);
+    }
+    eval(
+        &args.dataset,
+        settings,
+        args.categories.as_deref(),
+        &args.out,
+    )
 }
 
 fn eval(
