@@ -54,8 +54,12 @@ fn observe(
         .collect()
 }
 
-fn camera() -> Camera {
-    Camera::new(260.0, 260.0, 64.0, 64.0, 128, 128).unwrap()
+/// The tests' camera (128 x 128) at `pose`.
+fn view(pose: Pose) -> View {
+    View {
+        camera: Camera::new(260.0, 260.0, 64.0, 64.0, 128, 128).unwrap(),
+        pose,
+    }
 }
 
 #[test]
@@ -64,10 +68,7 @@ fn latent_code_converges_to_the_known_answer() {
     let space = space(&ctx);
     let truth: Vec<f64> = space.training_codes[2].clone();
     let pose = Pose::new([0.0, 0.0, 0.6], [2.9, 0.3, 0.1]).unwrap();
-    let view = View {
-        camera: camera(),
-        pose,
-    };
+    let view = view(pose);
     let observed = observe(&ctx, &space, &space.vertices(&truth).unwrap(), view);
     let registrar = Registrar::new(&ctx).unwrap();
     let params = RegisterParams {
@@ -115,15 +116,7 @@ fn pose_and_shape_converge_jointly() {
     let space = space(&ctx);
     let truth: Vec<f64> = space.training_codes[4].clone();
     let pose = Pose::new([0.0, 0.0, 0.6], [2.9, 0.3, 0.1]).unwrap();
-    let observed = observe(
-        &ctx,
-        &space,
-        &space.vertices(&truth).unwrap(),
-        View {
-            camera: camera(),
-            pose,
-        },
-    );
+    let observed = observe(&ctx, &space, &space.vertices(&truth).unwrap(), view(pose));
     let start = Pose::new([0.012, -0.01, 0.6], [2.95, 0.25, 0.12]).unwrap();
     let registrar = Registrar::new(&ctx).unwrap();
     let params = RegisterParams {
@@ -134,17 +127,7 @@ fn pose_and_shape_converge_jointly() {
         ..Default::default()
     };
     let result = registrar
-        .register(
-            &ctx,
-            &space,
-            &observed,
-            View {
-                camera: camera(),
-                pose: start,
-            },
-            &params,
-            |_, _| {},
-        )
+        .register(&ctx, &space, &observed, view(start), &params, |_, _| {})
         .unwrap();
     common::assert_no_validation_errors(&ctx);
     let before = (start.translation - pose.translation).length();
@@ -172,10 +155,7 @@ fn batched_registrations_match_single_ones() {
         .iter()
         .enumerate()
         .map(|(i, &pose)| {
-            let view = View {
-                camera: camera(),
-                pose,
-            };
+            let view = view(pose);
             let truth = &space.training_codes[i + 1];
             (
                 view,
@@ -236,10 +216,7 @@ fn bfgs_reaches_the_known_shape() {
     let ctx = common::context();
     let space = space(&ctx);
     let truth = space.vertices(&space.training_codes[2]).unwrap();
-    let view = View {
-        camera: camera(),
-        pose: Pose::new([0.0, 0.0, 0.6], [2.9, 0.3, 0.1]).unwrap(),
-    };
+    let view = view(Pose::new([0.0, 0.0, 0.6], [2.9, 0.3, 0.1]).unwrap());
     let observed = observe(&ctx, &space, &truth, view);
     let registrar = Registrar::new(&ctx).unwrap();
     let params = RegisterParams {
@@ -270,15 +247,7 @@ fn bfgs_aligns_then_fits_pose_and_shape() {
     let space = space(&ctx);
     let truth = space.vertices(&space.training_codes[4]).unwrap();
     let pose = Pose::new([0.0, 0.0, 0.6], [2.9, 0.3, 0.1]).unwrap();
-    let observed = observe(
-        &ctx,
-        &space,
-        &truth,
-        View {
-            camera: camera(),
-            pose,
-        },
-    );
+    let observed = observe(&ctx, &space, &truth, view(pose));
     let start = Pose::new([0.02, -0.015, 0.6], [2.8, 0.38, 0.05]).unwrap();
     let registrar = Registrar::new(&ctx).unwrap();
     let params = RegisterParams {
@@ -291,10 +260,7 @@ fn bfgs_aligns_then_fits_pose_and_shape() {
         optimizer: Optimizer::Bfgs,
         ..Default::default()
     };
-    let view = View {
-        camera: camera(),
-        pose: start,
-    };
+    let view = view(start);
     let result = registrar
         .register(&ctx, &space, &observed, view, &params, |_, _| {})
         .unwrap();
@@ -329,10 +295,7 @@ fn bfgs_aligns_then_fits_pose_and_shape() {
 fn bfgs_stays_finite_on_an_empty_observation() {
     let ctx = common::context();
     let space = space(&ctx);
-    let view = View {
-        camera: camera(),
-        pose: Pose::new([0.01, 0.0, 0.6], [2.9, 0.3, 0.1]).unwrap(),
-    };
+    let view = view(Pose::new([0.01, 0.0, 0.6], [2.9, 0.3, 0.1]).unwrap());
     let observed = vec![0.0f32; 128 * 128];
     let registrar = Registrar::new(&ctx).unwrap();
     for loss in [vkdr::loss::Loss::Mse, vkdr::loss::Loss::Distance] {
