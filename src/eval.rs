@@ -379,6 +379,21 @@ pub fn evaluate_instance(
     })
 }
 
+/// The error (against the surface sample `truth`) of the deformed canonical of each code,
+/// measured once for a run of equal codes (the pose alignment keeps the mean shape, and a
+/// rejected BFGS step keeps the last code).
+pub fn error_curve(space: &ShapeSpace, truth: &[DVec3], codes: &[Vec<f64>]) -> Result<Vec<f64>> {
+    let mut curve: Vec<f64> = Vec::with_capacity(codes.len());
+    for (t, code) in codes.iter().enumerate() {
+        let error = match curve.last() {
+            Some(&last) if codes[t - 1] == *code => last,
+            _ => surface_error(truth, &space.vertices(code)?, space.canonical.triangles()),
+        };
+        curve.push(error);
+    }
+    Ok(curve)
+}
+
 /// Adds error-after-each-iteration / trials (a stopped run holds its last value).
 fn accumulate_curve(
     curve: &mut [f64],
@@ -387,11 +402,10 @@ fn accumulate_curve(
     codes: &[Vec<f64>],
     trials: usize,
 ) -> Result<()> {
+    let errors = error_curve(space, truth, codes)?;
     let mut last = f64::NAN;
     for (t, slot) in curve.iter_mut().enumerate() {
-        if let Some(code) = codes.get(t) {
-            last = surface_error(truth, &space.vertices(code)?, space.canonical.triangles());
-        }
+        last = errors.get(t).copied().unwrap_or(last);
         *slot += last / trials as f64;
     }
     Ok(())
@@ -426,5 +440,39 @@ mod tests {
         let mesh = Mesh::bottle(12);
         let sample = surface_sample(&mesh, 200, 3);
         assert!(surface_error(&sample, &mesh.points(), mesh.triangles()) < 1e-7);
+    }
+
+    /// The error curve measures every code, once for a run of equal codes.
+    #[test]
+    fn error_curve_follows_the_codes() {
+        let canonical = Mesh::bottle(8);
+        let d = 3 * canonical.vertex_count();
+        let mut rng = Rng::new(5);
+        let mut field = |scale: f64| (0..d).map(|_| rng.range(-scale, scale)).collect();
+        let fits: Vec<crate::shape::TrainingFit> = (0..4)
+            .map(|_| crate::shape::TrainingFit {
+                w: field(1.0),
+                displacement: field(0.01),
+            })
+            .collect();
+        let names = (0..4).map(|i| i.to_string()).collect();
+        let space = ShapeSpace::from_fits("x", &canonical, 0.1, &fits, 2, names).unwrap();
+        let truth = surface_sample(&canonical, 300, 1);
+        let (a, b) = (vec![0.0, 0.0], space.training_codes[1].clone());
+        let codes = vec![a.clone(), a.clone(), b.clone(), b.clone(), a.clone()];
+        let curve = error_curve(&space, &truth, &codes).unwrap();
+        assert_eq!(curve.len(), codes.len());
+        for (code, error) in codes.iter().zip(&curve) {
+            let want = surface_error(
+                &truth,
+                &space.vertices(code).unwrap(),
+                canonical.triangles(),
+            );
+            assert_eq!(*error, want);
+        }
+        assert!(
+            curve[0] != curve[2],
+            "different codes, different errors: {curve:?}"
+        );
     }
 }

@@ -205,11 +205,11 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
             triangles,
         ),
     )];
-    for (t, code) in run.codes.iter().enumerate() {
-        curve.push((
-            (t + 1) as f64 * per_iteration,
-            surface_error(&truth, &space.vertices(code)?, triangles),
-        ));
+    for (t, error) in eval::error_curve(&space, &truth, &run.codes)?
+        .into_iter()
+        .enumerate()
+    {
+        curve.push(((t + 1) as f64 * per_iteration, error));
     }
     let batch_errors: Vec<f64> = batched_results
         .iter()
