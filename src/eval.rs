@@ -148,6 +148,10 @@ pub struct EvalSettings {
     pub pose_noise: RegisterParams,
     pub dims: usize,
     pub cpd: CpdParams,
+    /// Also register each trial with the pose optimised as with pose noise but starting
+    /// at the true pose (no alignment): how far the silhouette's own optimum lies from the
+    /// truth, apart from the start.
+    pub from_truth: bool,
 }
 
 impl Default for EvalSettings {
@@ -178,6 +182,7 @@ impl Default for EvalSettings {
                 ..RegisterParams::default()
             },
             dims: 5,
+            from_truth: false,
             cpd: CpdParams::default(),
         }
     }
@@ -244,6 +249,8 @@ pub struct Row {
     pub pose_noise_chamfer: Stat,
     /// Largest pose-noise error over the trials (divergence check).
     pub pose_noise_worst: f64,
+    /// With `EvalSettings::from_truth`: pose and shape optimised from the true pose.
+    pub from_truth: Option<Stat>,
     /// Mean iterations and milliseconds of a registration with the pose known...
     pub iterations: f64,
     pub ms: f64,
@@ -290,6 +297,7 @@ pub fn evaluate_instance(
     let oracle_vertices = space.vertices(&oracle_code)?;
     let mut rng = Rng::new(settings.seed ^ hash(name));
     let (mut known, mut known_ch, mut noisy, mut noisy_ch) = (vec![], vec![], vec![], vec![]);
+    let mut from_truth = Vec::new();
     let (mut iterations, mut ms, mut noise_iterations, mut noise_ms) =
         (vec![], vec![], vec![], vec![]);
     let mut curve_known = vec![0.0; settings.known_pose.total_iterations()];
@@ -324,6 +332,19 @@ pub fn evaluate_instance(
             &result.codes,
             settings.trials,
         )?;
+
+        if settings.from_truth {
+            let params = RegisterParams {
+                align: 0,
+                ..settings.pose_noise
+            };
+            let result = registrar.register(ctx, space, &mask, view, &params, |_, _| {})?;
+            from_truth.push(surface_error(
+                &truth,
+                &result.vertices,
+                space.canonical.triangles(),
+            ));
+        }
 
         let start = noisy_pose(
             pose,
@@ -369,6 +390,7 @@ pub fn evaluate_instance(
         pose_noise_worst: noisy.iter().copied().fold(0.0, f64::max),
         pose_noise: Stat::of(&noisy),
         pose_noise_chamfer: Stat::of(&noisy_ch),
+        from_truth: settings.from_truth.then(|| Stat::of(&from_truth)),
         iterations: Stat::of(&iterations).mean,
         ms: Stat::of(&ms).mean,
         noise_iterations: Stat::of(&noise_iterations).mean,

@@ -329,3 +329,73 @@ fn bfgs_stays_finite_on_an_empty_observation() {
         );
     }
 }
+
+/// `eval`'s per-instance measurement on a test instance inside the space: registration
+/// with the pose known gets close to it, and the pose-noise and from-true-pose conditions
+/// are measured and end nearer than the mean shape.
+#[test]
+fn eval_measures_every_condition() {
+    let ctx = common::context();
+    let space = space(&ctx);
+    let registrar = Registrar::new(&ctx).unwrap();
+    let test = space
+        .canonical
+        .with_points(&space.vertices(&space.training_codes[1]).unwrap())
+        .unwrap();
+    let defaults = vkdr::eval::EvalSettings::default();
+    let settings = vkdr::eval::EvalSettings {
+        camera: view(Pose::new([0.0, 0.0, 0.6], [0.0; 3]).unwrap()).camera,
+        distance: 0.6,
+        trials: 2,
+        known_pose: RegisterParams {
+            iterations: 20,
+            ..defaults.known_pose
+        },
+        pose_noise: RegisterParams {
+            iterations: 20,
+            align: 10,
+            ..defaults.pose_noise
+        },
+        from_truth: true,
+        ..defaults
+    };
+    let row = vkdr::eval::evaluate_instance(
+        &ctx,
+        &registrar,
+        &space,
+        "bottle",
+        "b1",
+        &test,
+        &settings,
+        |_, _| {},
+    )
+    .unwrap();
+    common::assert_no_validation_errors(&ctx);
+    let truth = vkdr::eval::surface_sample(&test, vkdr::eval::SAMPLE_POINTS, 1);
+    let mean_shape = vkdr::eval::surface_error(
+        &truth,
+        &space.vertices(&vec![0.0; space.dims()]).unwrap(),
+        space.canonical.triangles(),
+    );
+    let from_truth = row.from_truth.expect("the from-truth condition ran");
+    eprintln!(
+        "mean shape {mean_shape}, oracle {}, known {:?}, noise {:?}, from truth {from_truth:?}",
+        row.oracle, row.known_pose, row.pose_noise
+    );
+    assert!(
+        row.oracle < 0.1 * mean_shape,
+        "the instance is in the space"
+    );
+    assert!(
+        row.known_pose.mean < 0.3 * mean_shape,
+        "{:?}",
+        row.known_pose
+    );
+    assert!(from_truth.mean < 0.6 * mean_shape, "{from_truth:?}");
+    assert!(
+        row.pose_noise.mean < 0.5 * mean_shape,
+        "{:?}",
+        row.pose_noise
+    );
+    assert_eq!(row.curve_noise.len(), 30, "alignment and joint iterations");
+}

@@ -189,6 +189,14 @@ pub fn eval(
                 row.pose_noise.mean / row.oracle,
                 row.ms
             );
+            if let Some(f) = row.from_truth {
+                eprintln!(
+                    "  {:<22} from the true pose {:.2} mm ({:.2}x)",
+                    "",
+                    1e3 * f.mean,
+                    f.mean / row.oracle
+                );
+            }
             rows.push(row);
         }
     }
@@ -211,15 +219,18 @@ pub fn write_reports(
          oracle: least-squares latent fit to CPD of the canonical onto the true instance; \
          ratio = error / oracle error; chamfer = symmetric chamfer distance of the vertex sets (mm). \
          Registration: known pose, {} for {} iterations ({} loss); pose noise, the pose aligned alone for {} iterations ({} loss), \
-         then pose and shape by {} for {} ({} loss).\n\n\
-         | category | instance | oracle | known pose | ratio | pose noise | ratio | worst noise trial | chamfer oracle / known / noise | iterations known / noise | ms known / noise |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
+         then pose and shape by {} for {} ({} loss).{}\n\n\
+         | category | instance | oracle | known pose | ratio | pose noise | ratio | worst noise trial | chamfer oracle / known / noise | iterations known / noise | ms known / noise |{}\n|---|---|---|---|---|---|---|---|---|---|---|{}\n",
         c.fx, c.fy, c.cx, c.cy, c.width, c.height, settings.distance,
         settings.elevation.0.to_degrees(), settings.elevation.1.to_degrees(), settings.trials, settings.seed,
         100.0 * settings.translation_noise, settings.rotation_noise.to_degrees(), eval::SAMPLE_POINTS,
         known.optimizer.name(), known.iterations, known.loss.name(), noisy.align, noisy.align_loss.name(),
-        noisy.optimizer.name(), noisy.iterations, noisy.loss.name()
+        noisy.optimizer.name(), noisy.iterations, noisy.loss.name(),
+        if settings.from_truth { " From true pose: pose and shape as with pose noise, but starting at the true pose (no alignment)." } else { "" },
+        if settings.from_truth { " from true pose | ratio |" } else { "" },
+        if settings.from_truth { "---|---|" } else { "" },
     );
-    let mut csv = String::from("category,instance,oracle,known_pose_mean,known_pose_std,pose_noise_mean,pose_noise_std,iterations,ms,oracle_chamfer,known_pose_chamfer,pose_noise_chamfer,noise_iterations,noise_ms\n");
+    let mut csv = String::from("category,instance,oracle,known_pose_mean,known_pose_std,pose_noise_mean,pose_noise_std,iterations,ms,oracle_chamfer,known_pose_chamfer,pose_noise_chamfer,noise_iterations,noise_ms,from_truth_mean,from_truth_std\n");
     let mut json = Vec::new();
     for r in rows {
         md.push_str(&format!(
@@ -228,8 +239,17 @@ pub fn write_reports(
             1e3 * r.pose_noise.mean, 1e3 * r.pose_noise.std, r.pose_noise.mean / r.oracle, 1e3 * r.pose_noise_worst,
             1e3 * r.oracle_chamfer, 1e3 * r.known_pose_chamfer.mean, 1e3 * r.pose_noise_chamfer.mean, r.iterations, r.noise_iterations, r.ms, r.noise_ms
         ));
+        if let Some(f) = r.from_truth {
+            md.pop();
+            md.push_str(&format!(
+                " {:.2} +- {:.2} | {:.2} |\n",
+                1e3 * f.mean,
+                1e3 * f.std,
+                f.mean / r.oracle
+            ));
+        }
         csv.push_str(&format!(
-            "{},{},{:e},{:e},{:e},{:e},{:e},{},{:.3},{:e},{:e},{:e},{},{:.3}\n",
+            "{},{},{:e},{:e},{:e},{:e},{:e},{},{:.3},{:e},{:e},{:e},{},{:.3},{},{}\n",
             r.category,
             r.instance,
             r.oracle,
@@ -243,12 +263,17 @@ pub fn write_reports(
             r.known_pose_chamfer.mean,
             r.pose_noise_chamfer.mean,
             r.noise_iterations,
-            r.noise_ms
+            r.noise_ms,
+            r.from_truth
+                .map_or(String::new(), |f| format!("{:e}", f.mean)),
+            r.from_truth
+                .map_or(String::new(), |f| format!("{:e}", f.std)),
         ));
         json.push(format!(
-            "  {{\"category\": {:?}, \"instance\": {:?}, \"oracle\": {:e}, \"known_pose\": {{\"mean\": {:e}, \"std\": {:e}}}, \"pose_noise\": {{\"mean\": {:e}, \"std\": {:e}}}, \"iterations\": {}, \"ms\": {:.3}, \"chamfer\": {{\"oracle\": {:e}, \"known_pose\": {:e}, \"pose_noise\": {:e}}}, \"noise_iterations\": {}, \"noise_ms\": {:.3}}}",
+            "  {{\"category\": {:?}, \"instance\": {:?}, \"oracle\": {:e}, \"known_pose\": {{\"mean\": {:e}, \"std\": {:e}}}, \"pose_noise\": {{\"mean\": {:e}, \"std\": {:e}}}, \"iterations\": {}, \"ms\": {:.3}, \"chamfer\": {{\"oracle\": {:e}, \"known_pose\": {:e}, \"pose_noise\": {:e}}}, \"noise_iterations\": {}, \"noise_ms\": {:.3}, \"from_truth\": {}}}",
             r.category, r.instance, r.oracle, r.known_pose.mean, r.known_pose.std, r.pose_noise.mean, r.pose_noise.std, r.iterations, r.ms,
-            r.oracle_chamfer, r.known_pose_chamfer.mean, r.pose_noise_chamfer.mean, r.noise_iterations, r.noise_ms
+            r.oracle_chamfer, r.known_pose_chamfer.mean, r.pose_noise_chamfer.mean, r.noise_iterations, r.noise_ms,
+            r.from_truth.map_or("null".to_string(), |f| format!("{{\"mean\": {:e}, \"std\": {:e}}}", f.mean, f.std))
         ));
     }
     write_atomically(&out.join("table.md"), md.as_bytes())?;

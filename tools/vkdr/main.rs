@@ -252,6 +252,10 @@ struct EvalArgs {
     /// With pose noise: iterations that first align the pose alone (distance loss).
     #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.align)]
     align: usize,
+    /// Also optimise pose and shape from the true pose (a column of its own): where the
+    /// silhouette's optimum lies, apart from the start.
+    #[arg(long)]
+    from_truth: bool,
     #[arg(long)]
     out: PathBuf,
 }
@@ -602,6 +606,7 @@ fn eval_command(args: &EvalArgs) -> Result<()> {
     settings.pose_noise.rotation_step = args.rotation_step;
     settings.pose_noise.pose_every = args.pose_every;
     settings.pose_noise.align = args.align;
+    settings.from_truth = args.from_truth;
     let loss: Option<vkdr::loss::Loss> = args.loss.as_deref().map(str::parse).transpose()?;
     let optimizer: Option<vkdr::register::Optimizer> =
         args.optimizer.as_deref().map(str::parse).transpose()?;
