@@ -203,6 +203,33 @@ pub fn eval(
     Ok(rows)
 }
 
+/// Each category's means over its test instances, and the ratios of those means.
+fn category_table(rows: &[Row]) -> String {
+    let mut categories: Vec<&str> = rows.iter().map(|r| r.category.as_str()).collect();
+    categories.dedup();
+    let mut md = String::from(
+        "\nPer category (means over its test instances; ratio = mean error / mean oracle error):\n\n\
+         | category | oracle | known pose | ratio | pose noise | ratio | worst noise trial |\n|---|---|---|---|---|---|---|\n",
+    );
+    for category in categories {
+        let of: Vec<&Row> = rows.iter().filter(|r| r.category == category).collect();
+        let mean = |f: &dyn Fn(&Row) -> f64| of.iter().map(|r| f(r)).sum::<f64>() / of.len() as f64;
+        let oracle = mean(&|r| r.oracle);
+        let (known, noise) = (mean(&|r| r.known_pose.mean), mean(&|r| r.pose_noise.mean));
+        let worst = of.iter().map(|r| r.pose_noise_worst).fold(0.0, f64::max);
+        md.push_str(&format!(
+            "| {category} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} |\n",
+            1e3 * oracle,
+            1e3 * known,
+            known / oracle,
+            1e3 * noise,
+            noise / oracle,
+            1e3 * worst
+        ));
+    }
+    md
+}
+
 pub fn write_reports(
     out: &Path,
     rows: &[Row],
@@ -276,6 +303,7 @@ pub fn write_reports(
             r.from_truth.map_or("null".to_string(), |f| format!("{{\"mean\": {:e}, \"std\": {:e}}}", f.mean, f.std))
         ));
     }
+    md.push_str(&category_table(rows));
     write_atomically(&out.join("table.md"), md.as_bytes())?;
     write_atomically(&out.join("table.csv"), csv.as_bytes())?;
     write_atomically(
