@@ -295,6 +295,7 @@ pub fn evaluate_instance(
     let test_vertices = test.points();
     let oracle_code = space.oracle_code(ctx, &test_vertices, &settings.cpd)?;
     let oracle_vertices = space.vertices(&oracle_code)?;
+    let error = |vertices: &[DVec3]| surface_error(&truth, vertices, space.canonical.triangles());
     let mut rng = Rng::new(settings.seed ^ hash(name));
     let (mut known, mut known_ch, mut noisy, mut noisy_ch) = (vec![], vec![], vec![], vec![]);
     let mut from_truth = Vec::new();
@@ -316,11 +317,7 @@ pub fn evaluate_instance(
 
         let result =
             registrar.register(ctx, space, &mask, view, &settings.known_pose, |_, _| {})?;
-        known.push(surface_error(
-            &truth,
-            &result.vertices,
-            space.canonical.triangles(),
-        ));
+        known.push(error(&result.vertices));
         known_ch.push(chamfer(&test_vertices, &result.vertices));
         iterations.push(result.iterations as f64);
         ms.push(result.milliseconds);
@@ -339,11 +336,7 @@ pub fn evaluate_instance(
                 ..settings.pose_noise
             };
             let result = registrar.register(ctx, space, &mask, view, &params, |_, _| {})?;
-            from_truth.push(surface_error(
-                &truth,
-                &result.vertices,
-                space.canonical.triangles(),
-            ));
+            from_truth.push(error(&result.vertices));
         }
 
         let start = noisy_pose(
@@ -363,11 +356,7 @@ pub fn evaluate_instance(
             &settings.pose_noise,
             |_, _| {},
         )?;
-        noisy.push(surface_error(
-            &truth,
-            &result.vertices,
-            space.canonical.triangles(),
-        ));
+        noisy.push(error(&result.vertices));
         noisy_ch.push(chamfer(&test_vertices, &result.vertices));
         noise_iterations.push(result.iterations as f64);
         noise_ms.push(result.milliseconds);
@@ -383,7 +372,7 @@ pub fn evaluate_instance(
     Ok(Row {
         category: category.into(),
         instance: name.into(),
-        oracle: surface_error(&truth, &oracle_vertices, space.canonical.triangles()),
+        oracle: error(&oracle_vertices),
         oracle_chamfer: chamfer(&test_vertices, &oracle_vertices),
         known_pose: Stat::of(&known),
         known_pose_chamfer: Stat::of(&known_ch),

@@ -261,20 +261,12 @@ pub fn write_reports(
     let mut json = Vec::new();
     for r in rows {
         md.push_str(&format!(
-            "| {} | {} | {:.2} | {:.2} +- {:.2} | {:.2} | {:.2} +- {:.2} | {:.2} | {:.2} | {:.2} / {:.2} / {:.2} | {:.1} / {:.1} | {:.0} / {:.0} |\n",
+            "| {} | {} | {:.2} | {:.2} +- {:.2} | {:.2} | {:.2} +- {:.2} | {:.2} | {:.2} | {:.2} / {:.2} / {:.2} | {:.1} / {:.1} | {:.0} / {:.0} |{}\n",
             r.category, r.instance, 1e3 * r.oracle, 1e3 * r.known_pose.mean, 1e3 * r.known_pose.std, r.known_pose.mean / r.oracle,
             1e3 * r.pose_noise.mean, 1e3 * r.pose_noise.std, r.pose_noise.mean / r.oracle, 1e3 * r.pose_noise_worst,
-            1e3 * r.oracle_chamfer, 1e3 * r.known_pose_chamfer.mean, 1e3 * r.pose_noise_chamfer.mean, r.iterations, r.noise_iterations, r.ms, r.noise_ms
+            1e3 * r.oracle_chamfer, 1e3 * r.known_pose_chamfer.mean, 1e3 * r.pose_noise_chamfer.mean, r.iterations, r.noise_iterations, r.ms, r.noise_ms,
+            r.from_truth.map_or(String::new(), |f| format!(" {:.2} +- {:.2} | {:.2} |", 1e3 * f.mean, 1e3 * f.std, f.mean / r.oracle))
         ));
-        if let Some(f) = r.from_truth {
-            md.pop();
-            md.push_str(&format!(
-                " {:.2} +- {:.2} | {:.2} |\n",
-                1e3 * f.mean,
-                1e3 * f.std,
-                f.mean / r.oracle
-            ));
-        }
         csv.push_str(&format!(
             "{},{},{:e},{:e},{:e},{:e},{:e},{},{:.3},{:e},{:e},{:e},{},{:.3},{},{}\n",
             r.category,
