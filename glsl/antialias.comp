@@ -9,7 +9,7 @@ layout(local_size_x = 64) in;
 
 vec4 antialiased_value(uint view, ivec2 p, ivec2 size, uint id) {
     ViewData vd = views[view];
-    vec4 c = colour_at(vd, p, id);
+    vec4 c = colour_at(vd, view, p, id);
     vec4 a = c;
     for (int s = 0; s < 4; ++s) {
         ivec2 q = p + STEPS[s];
@@ -21,7 +21,7 @@ vec4 antialiased_value(uint view, ivec2 p, ivec2 size, uint id) {
         ivec2 affected = pair.affects_g ? pair.g : pair.f;
         if (affected != p) continue;
         ivec2 other = pair.affects_g ? pair.f : pair.g;
-        a += pair.weight * (colour_at(vd, other, id_at(other, view)) - c);
+        a += pair.weight * (colour_at(vd, view, other, id_at(other, view)) - c);
     }
     return a;
 }

@@ -12,7 +12,7 @@
 layout(local_size_x = 64) in;
 
 layout(set = 0, binding = 10, std430) buffer GradCamera { float grad_camera[]; };        // [view][vertex][3]
-layout(set = 0, binding = 11, std430) buffer GradAttributes { float grad_attributes[]; };  // [vertex][channel]
+layout(set = 0, binding = 11, std430) buffer GradAttributes { float grad_attributes[]; };  // [view][vertex][channel]
 
 // d clip / d camera is (sx, sy, ox, oy): x_clip = sx x + ox z, y_clip = sy y + oy z, w = z.
 void add_clip_gradient(ViewData vd, uint view, uint v, vec3 g_clip) {
@@ -28,8 +28,8 @@ void add_clip_gradient(ViewData vd, uint view, uint v, vec3 g_clip) {
 void crossing_backward(ViewData vd, uint view, Pair pair) {
     ivec2 affected = pair.affects_g ? pair.g : pair.f;
     vec4 ga = loss_gradient(pixel_index(affected, view), view);
-    vec4 cf = colour_at(vd, pair.f, id_at(pair.f, view));
-    vec4 cg = colour_at(vd, pair.g, id_at(pair.g, view));
+    vec4 cf = colour_at(vd, view, pair.f, id_at(pair.f, view));
+    vec4 cg = colour_at(vd, view, pair.g, id_at(pair.g, view));
     float g_alpha = dot(ga, cf - cg);
     if (g_alpha == 0.0) return;
     Crossing c = pair.crossing;
@@ -88,8 +88,8 @@ void handle_pixel(uint index) {
     vec3 g_b = vec3(0.0);
     for (int k = 0; k < 3; ++k) {
         for (uint ch = 0u; ch < pc.channels; ++ch) {
-            atomicAdd(grad_attributes[tri.v[k] * pc.channels + ch], b[k] * g_colour[ch]);
-            g_b[k] += g_colour[ch] * attributes[tri.v[k] * pc.channels + ch];
+            atomicAdd(grad_attributes[attribute_index(view, tri.v[k], ch)], b[k] * g_colour[ch]);
+            g_b[k] += g_colour[ch] * attributes[attribute_index(view, tri.v[k], ch)];
         }
     }
     // b = e / sum(e): dL/de_k = (dL/db_k - dot(b, dL/db)) / sum(e).

@@ -14,7 +14,7 @@ mod common;
 use glam::{DMat3, DVec3};
 
 use vkdr::diff::reference::{self, Problem, RigidPose};
-use vkdr::diff::{neighbours, DiffRenderer, Evaluation, Scene, SceneDesc};
+use vkdr::diff::{neighbours, DiffRenderer, Evaluation, Scene, SceneDesc, Shading};
 use vkdr::loss::Loss;
 use vkdr::raster::View;
 use vkdr::{Camera, Mesh, Pose};
@@ -28,6 +28,7 @@ struct Case {
     /// [view][row][column][channel]
     observed: Vec<f32>,
     attributes: Option<(Vec<f32>, u32)>,
+    shading: Option<Shading>,
 }
 
 /// What a check measured.
@@ -74,6 +75,7 @@ fn check(case: &Case) -> (Report, Evaluation) {
             loss: case.loss,
             observed: &case.observed,
             attributes,
+            shading: case.shading,
         },
     )
     .expect("scene");
@@ -120,6 +122,7 @@ fn check(case: &Case) -> (Report, Evaluation) {
         attributes: attributes64
             .as_deref()
             .zip(case.attributes.as_ref().map(|(_, c)| *c as usize)),
+        shading: case.shading,
         loss: case.loss,
     };
     let positions: Vec<DVec3> = case.mesh.points();
@@ -267,6 +270,7 @@ fn sphere_case(loss: Loss, radius: f32, distance: f64, size: u32) -> Case {
         loss,
         observed: disc(size, size, 0.58 * s, 0.43 * s, 0.3 * s),
         attributes: None,
+        shading: None,
     }
 }
 
@@ -302,6 +306,41 @@ fn mse_of_interpolated_colour() {
     case.attributes = Some((colours, 3));
     let report = assert_gradients_match(&case);
     assert!(report.loss > 0.0);
+}
+
+/// A grey disc (the sphere's mean shade, about) to compare the sphere's shading with.
+fn grey_disc_case(views: usize) -> Case {
+    let mut case = sphere_case(Loss::Mse, 0.1, 0.45, 48);
+    case.shading = Some(Shading::default());
+    if views == 2 {
+        case.views.push(View {
+            camera: camera(48),
+            pose: Pose::new([-0.02, 0.01, 0.5], [1.2, 0.3, -0.4]).unwrap(),
+        });
+        let mask = case.observed.clone();
+        case.observed.extend(mask.iter().rev());
+    }
+    case.observed.iter_mut().for_each(|v| *v *= 0.6);
+    case
+}
+
+#[test]
+fn mse_of_lambert_shading() {
+    let case = grey_disc_case(1);
+    let (_, gpu) = check(&case);
+    // Shading, not coverage: the object's pixels take more than two values.
+    let mut shades: Vec<f32> = gpu.antialiased.clone();
+    shades.sort_by(f32::total_cmp);
+    shades.dedup_by(|a, b| (*a - *b).abs() < 1e-3);
+    assert!(shades.len() > 20, "{} distinct shades", shades.len());
+    let report = assert_gradients_match(&case);
+    assert!(report.loss > 0.0);
+}
+
+#[test]
+fn lambert_shading_in_two_views() {
+    // Each view shades the vertices under its own rotation.
+    assert_gradients_match(&grey_disc_case(2));
 }
 
 #[test]
@@ -355,6 +394,7 @@ fn triangle_crossing_near_plane() {
         loss: Loss::Mse,
         observed: disc(64, 64, 30.0, 40.0, 15.0),
         attributes: None,
+        shading: None,
     };
     assert_gradients_match(&case);
 }

@@ -17,7 +17,7 @@ layout(set = 0, binding = 0, std430) readonly buffer Positions { float positions
 layout(set = 0, binding = 1, std430) readonly buffer Triangles { uint triangles[]; };
 layout(set = 0, binding = 2, std430) readonly buffer Neighbours { uint neighbours[]; };
 layout(set = 0, binding = 3, std430) readonly buffer Views { ViewData views[]; };
-layout(set = 0, binding = 4, std430) readonly buffer Attributes { float attributes[]; };
+layout(set = 0, binding = 4, std430) readonly buffer Attributes { float attributes[]; };               // [view][vertex][channel]
 layout(set = 0, binding = 5, std430) readonly buffer Ids { uint ids[]; };                 // [view][y][x]
 layout(set = 0, binding = 6, std430) readonly buffer Observed { float observed[]; };    // [view][y][x][channel]
 layout(set = 0, binding = 7, std430) readonly buffer Distance { float distance_field[]; };  // [view][y][x]

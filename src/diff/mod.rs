@@ -1,6 +1,7 @@
 //! Exact gradients through the rasterizer. From the G-buffer's triangle ids, compute
 //! shaders shade the compared image (antialiased coverage, or per-vertex attributes
-//! interpolated with exact perspective-correct barycentrics), antialias it analytically
+//! interpolated with exact perspective-correct barycentrics, which [`Shading`] can compute
+//! on the device from the vertex normals and a light), antialias it analytically
 //! across silhouette edges between adjacent pixels (the idea of nvdiffrast's `antialias`,
 //! with mesh topology to find silhouette edges and a walk across triangles smaller than a
 //! pixel), evaluate the loss, and push dL/dpixel back to every vertex (float `atomicAdd`)
@@ -29,6 +30,7 @@ const ANTIALIAS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/antialias.com
 const BACKWARD: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/antialias_backward.comp.spv"));
 const FINALIZE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/loss_finalize.comp.spv"));
 const POSE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/pose_gradient.comp.spv"));
+const LAMBERT: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/lambert.comp.spv"));
 
 /// Marks an edge without exactly one neighbouring triangle.
 pub const NO_NEIGHBOUR: u32 = u32::MAX;
@@ -59,6 +61,83 @@ pub fn neighbours(mesh: &Mesh) -> Vec<u32> {
     out
 }
 
+/// For each vertex, its triangles as `3 triangle + corner`: `(start, list)` with vertex v's
+/// entries at `list[start[v]..start[v + 1]]` (ascending triangle order).
+pub fn incident_triangles(mesh: &Mesh) -> (Vec<u32>, Vec<u32>) {
+    let mut count = vec![0u32; mesh.vertex_count() + 1];
+    for tri in mesh.triangles() {
+        for &v in tri {
+            count[v as usize + 1] += 1;
+        }
+    }
+    for v in 0..mesh.vertex_count() {
+        count[v + 1] += count[v];
+    }
+    let start = count.clone();
+    let mut list = vec![0u32; start[mesh.vertex_count()] as usize];
+    for (t, tri) in mesh.triangles().iter().enumerate() {
+        for (corner, &v) in tri.iter().enumerate() {
+            list[count[v as usize] as usize] = 3 * t as u32 + corner as u32;
+            count[v as usize] += 1;
+        }
+    }
+    (start, list)
+}
+
+/// Grey Lambert shading, compared instead of the coverage: one directional light fixed in
+/// the camera frame, the smooth (area-weighted) vertex normals, and an ambient term, so
+/// that an object pixel has `ambient + (1 - ambient) max(0, n . light)` interpolated from
+/// its triangle's vertices and the background 0. Unlike a silhouette it shows how the
+/// surface turns, which one mask leaves open (the tilt of a bottle towards the camera).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Shading {
+    /// Direction towards the light in the camera frame (x right, y down, z forward;
+    /// normalised on use).
+    pub light: [f64; 3],
+    pub ambient: f64,
+}
+
+impl Default for Shading {
+    /// A light above, left of and behind the camera.
+    fn default() -> Self {
+        Self {
+            light: [-0.3, -0.5, -1.0],
+            ambient: 0.2,
+        }
+    }
+}
+
+impl Shading {
+    /// The unit light direction, or an error for a zero or non-finite one or an ambient
+    /// term outside [0, 1).
+    pub fn unit_light(&self) -> Result<[f64; 3]> {
+        let [x, y, z] = self.light;
+        let norm = (x * x + y * y + z * z).sqrt();
+        if !(norm.is_finite() && norm > 0.0) {
+            return Err(Error::InvalidInput(format!(
+                "the light direction {:?} has no length",
+                self.light
+            )));
+        }
+        if !(0.0..1.0).contains(&self.ambient) {
+            return Err(Error::InvalidInput(format!(
+                "the ambient term {} is outside [0, 1)",
+                self.ambient
+            )));
+        }
+        Ok([x / norm, y / norm, z / norm])
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct LambertConstants {
+    vertex_count: u32,
+    stage: u32,
+    ambient: f32,
+    light: [f32; 3],
+}
+
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct PassConstants {
@@ -79,6 +158,7 @@ pub struct DiffRenderer {
     backward: ComputePipeline,
     finalize: ComputePipeline,
     pose: ComputePipeline,
+    lambert: ComputePipeline,
     distance: DistanceField,
 }
 
@@ -130,6 +210,13 @@ impl DiffRenderer {
                 &[BindingKind::StorageBuffer; 5],
                 4,
             )?,
+            lambert: ComputePipeline::new(
+                ctx,
+                "lambert",
+                &spirv(LAMBERT)?,
+                &[BindingKind::StorageBuffer; 9],
+                std::mem::size_of::<LambertConstants>() as u32,
+            )?,
             distance: DistanceField::new(ctx)?,
         })
     }
@@ -147,9 +234,12 @@ pub struct SceneDesc<'a> {
     /// Observed images, [view][row][column][channel] with `channels` = attribute channels
     /// (1 for a mask: nonzero = object).
     pub observed: &'a [f32],
-    /// Per-vertex attributes to interpolate ([vertex][channel], 1 to 4 channels), or
-    /// `None` to compare antialiased coverage with a mask.
+    /// Per-vertex attributes to interpolate ([vertex][channel], 1 to 4 channels, the same
+    /// for every view), or `None` to compare antialiased coverage with a mask.
     pub attributes: Option<(&'a [f32], u32)>,
+    /// Compare Lambert shading (one channel, computed on the device for every view)
+    /// instead; excludes `attributes`.
+    pub shading: Option<Shading>,
 }
 
 /// Device buffers of one differentiable scene: mesh, views, G-buffer, observation and
@@ -159,7 +249,11 @@ pub struct Scene {
     views: ViewBuffers,
     gbuffer: Gbuffer,
     neighbours: Buffer,
+    /// [view][vertex][channel]
     attributes: Buffer,
+    /// With shading: the incident triangles of every vertex, dL/d(normal) scratch, the
+    /// unit light.
+    lambert: Option<LambertBuffers>,
     observed: Buffer,
     distance: Buffer,
     distance_scratch: Option<[Buffer; 2]>,
@@ -188,12 +282,21 @@ pub struct Evaluation {
     /// Per view: dL/dt (camera frame) then dL/dd for a rotation increment d applied on the
     /// left, x_camera = exp([d]x) R x + t.
     pub pose_gradient: Vec<[f32; 6]>,
-    /// dL/d(attribute), [vertex][channel] (empty without attributes).
+    /// dL/d(attribute), [vertex][channel], summed over views (empty without attributes;
+    /// with shading, dL/d(shade)).
     pub attribute_gradient: Vec<f32>,
     /// The antialiased compared image, [view][row][column][channel].
     pub antialiased: Vec<f32>,
     /// Triangle id + 1 per pixel, [view][row][column].
     pub ids: Vec<u32>,
+}
+
+struct LambertBuffers {
+    start: Buffer,
+    incident: Buffer,
+    grad_normal: Buffer,
+    light: [f32; 3],
+    ambient: f32,
 }
 
 impl Scene {
@@ -202,9 +305,35 @@ impl Scene {
         let views = ViewBuffers::new(ctx, desc.views)?;
         let (w, h, n) = (views.width(), views.height(), views.count());
         let pixels = w as u64 * h as u64 * n as u64;
-        let (attributes, channels) = match desc.attributes {
-            None => (vec![0.0f32], 0),
-            Some((values, channels)) => {
+        let vertices = desc.mesh.vertex_count() as u64;
+        if desc.shading.is_some() && desc.attributes.is_some() {
+            return Err(Error::InvalidInput(
+                "a scene compares either attributes or shading, not both".into(),
+            ));
+        }
+        let lambert = match desc.shading {
+            None => None,
+            Some(shading) => {
+                let light = shading.unit_light()?.map(|v| v as f32);
+                let (start, incident) = incident_triangles(desc.mesh);
+                Some(LambertBuffers {
+                    start: Buffer::from_slice(ctx, "incident triangle starts", &start)?,
+                    incident: Buffer::from_slice(ctx, "incident triangles", &incident)?,
+                    grad_normal: Buffer::new(
+                        ctx,
+                        "normal gradients",
+                        n as u64 * vertices * 12,
+                        BufferKind::Device,
+                    )?,
+                    light,
+                    ambient: shading.ambient as f32,
+                })
+            }
+        };
+        let attributes = match (desc.attributes, &lambert) {
+            (None, None) => None,
+            (None, Some(_)) => Some((None, 1)),
+            (Some((values, channels)), _) => {
                 if !(1..=4).contains(&channels)
                     || values.len() != desc.mesh.vertex_count() * channels as usize
                 {
@@ -220,7 +349,25 @@ impl Scene {
                         desc.loss.name()
                     )));
                 }
-                (values.to_vec(), channels)
+                Some((Some(values), channels))
+            }
+        };
+        if lambert.is_some() && desc.loss != Loss::Mse {
+            return Err(Error::InvalidInput(format!(
+                "the {} loss compares masks; use mse with shading",
+                desc.loss.name()
+            )));
+        }
+        let channels = attributes.map_or(0, |(_, c)| c);
+        // Every view has its own attributes: given ones repeated, shading's written on the
+        // device.
+        let attributes = match attributes {
+            None => Buffer::from_slice(ctx, "attributes", &[0.0f32])?,
+            Some((Some(values), _)) => {
+                Buffer::from_slice(ctx, "attributes", &values.repeat(n as usize))?
+            }
+            Some((None, _)) => {
+                Buffer::new(ctx, "shading", n as u64 * vertices * 4, BufferKind::Device)?
             }
         };
         let image_channels = channels.max(1) as u64;
@@ -235,7 +382,6 @@ impl Scene {
                 "observed images contain NaN or Inf".into(),
             ));
         }
-        let vertices = desc.mesh.vertex_count() as u64;
         let device = |name, bytes| Buffer::new(ctx, name, bytes, BufferKind::Device);
         let with_distance = desc.loss == Loss::Distance;
         // One partial loss sum per subgroup of every 8 x 8 workgroup.
@@ -244,7 +390,8 @@ impl Scene {
         Ok(Self {
             gbuffer: Gbuffer::new(ctx, w, h, n, Outputs::Ids)?,
             neighbours: Buffer::from_slice(ctx, "neighbours", &neighbours(desc.mesh))?,
-            attributes: Buffer::from_slice(ctx, "attributes", &attributes)?,
+            attributes,
+            lambert,
             observed: Buffer::from_slice(ctx, "observed", desc.observed)?,
             distance: device("distance field", if with_distance { pixels * 4 } else { 4 })?,
             distance_scratch: if with_distance {
@@ -263,7 +410,10 @@ impl Scene {
             work: device("work list", pixels * 4)?,
             work_count: device("work count", 16)?,
             grad_camera: device("camera gradients", n as u64 * vertices * 12)?,
-            grad_attributes: device("attribute gradients", vertices * channels as u64 * 4)?,
+            grad_attributes: device(
+                "attribute gradients",
+                (n as u64 * vertices * channels as u64 * 4).max(4),
+            )?,
             grad_object: device("vertex gradients", vertices * 12)?,
             grad_pose: device("pose gradients", n as u64 * 24)?,
             ids: device("triangle ids", pixels * 4)?,
@@ -324,6 +474,7 @@ impl Scene {
         ] {
             rec.fill_buffer(buffer, 0);
         }
+        self.record_lambert(renderer, rec, 0);
         renderer
             .rasterizer
             .draw(rec, &self.mesh, &self.views, &self.gbuffer)?;
@@ -399,6 +550,8 @@ impl Scene {
 
         rec.run_compute(&renderer.backward, &bindings, &constants, work);
         rec.memory_barrier();
+        self.record_lambert(renderer, rec, 1);
+        self.record_lambert(renderer, rec, 2);
 
         let vertices = self.mesh.vertex_count();
         rec.run_compute(
@@ -418,6 +571,36 @@ impl Scene {
             rec.timestamp(t, 2);
         }
         Ok(())
+    }
+
+    /// With shading, one stage of `glsl/lambert.comp` (and a barrier after it).
+    fn record_lambert(&self, renderer: &DiffRenderer, rec: &mut Recorder, stage: u32) {
+        let Some(lambert) = &self.lambert else {
+            return;
+        };
+        let vertices = self.mesh.vertex_count();
+        rec.run_compute(
+            &renderer.lambert,
+            &[
+                Binding::buffer(self.mesh.positions()),
+                Binding::buffer(self.mesh.triangles()),
+                Binding::buffer(self.views.views()),
+                Binding::buffer(&lambert.start),
+                Binding::buffer(&lambert.incident),
+                Binding::buffer(&self.attributes),
+                Binding::buffer(&self.grad_attributes),
+                Binding::buffer(&lambert.grad_normal),
+                Binding::buffer(&self.grad_camera),
+            ],
+            &LambertConstants {
+                vertex_count: vertices,
+                stage,
+                ambient: lambert.ambient,
+                light: lambert.light,
+            },
+            Groups::Count(vertices.div_ceil(64), 1, self.views.count()),
+        );
+        rec.memory_barrier();
     }
 
     /// The buffer holding each view's loss at float index 4 view + 3.
@@ -445,9 +628,13 @@ impl Scene {
             loss: (0..n).map(|k| stats[4 * k + 3]).collect(),
             vertex_gradient: self.grad_object.read_range::<[f32; 3]>(0, v)?,
             pose_gradient: self.grad_pose.read_range::<[f32; 6]>(0, n)?,
-            attribute_gradient: self
-                .grad_attributes
-                .read_range::<f32>(0, v * self.channels as usize)?,
+            attribute_gradient: {
+                let per_view = v * self.channels as usize;
+                let all = self.grad_attributes.read_range::<f32>(0, n * per_view)?;
+                (0..per_view)
+                    .map(|i| (0..n).map(|view| all[view * per_view + i]).sum())
+                    .collect()
+            },
             antialiased: self
                 .antialiased
                 .read_range::<f32>(0, pixels * self.channels.max(1) as usize)?,

@@ -3,11 +3,12 @@
 //! image is a smooth function of the vertices and poses, which is what central
 //! differences of this model measure and the device's gradients must match).
 //!
-//! It mirrors `glsl/include/diff.glsl`, `shade.glsl` and `antialias.comp` step by step.
+//! It mirrors `glsl/include/diff.glsl`, `shade.glsl`, `antialias.comp` and `lambert.comp`
+//! step by step.
 
 use glam::{DMat3, DVec2, DVec3};
 
-use super::NO_NEIGHBOUR;
+use super::{Shading, NO_NEIGHBOUR};
 use crate::camera::Camera;
 use crate::loss::{reference as loss_reference, Loss};
 
@@ -27,6 +28,8 @@ pub struct Problem<'a> {
     pub distance: &'a [f64],
     /// Per-vertex attributes and their channel count, or `None` for coverage.
     pub attributes: Option<(&'a [f64], usize)>,
+    /// Lambert shading instead of attributes (one channel).
+    pub shading: Option<Shading>,
     pub loss: Loss,
 }
 
@@ -58,6 +61,8 @@ struct ViewModel<'a> {
     camera: Camera,
     ids: &'a [u32],
     cam: Vec<DVec3>,
+    /// This view's shading of every vertex (with `Problem::shading`).
+    shade: Vec<f64>,
     scale: DVec2,
     shift: DVec2,
 }
@@ -142,7 +147,11 @@ impl ViewModel<'_> {
         if id == 0 {
             return c;
         }
-        match self.problem.attributes {
+        let attributes = match (self.problem.shading, self.problem.attributes) {
+            (Some(_), _) => Some((&self.shade[..], 1)),
+            (None, given) => given,
+        };
+        match attributes {
             None => c[0] = 1.0,
             Some((attributes, n)) => {
                 let tri = self.tri(id as usize - 1);
@@ -270,9 +279,36 @@ impl ViewModel<'_> {
     }
 }
 
+/// Lambert shading of every vertex at camera-space positions `cam` (as `lambert.comp`).
+pub fn lambert(shading: &Shading, triangles: &[[u32; 3]], cam: &[DVec3]) -> Vec<f64> {
+    let light = DVec3::from_array(shading.light).normalize();
+    let mut normals = vec![DVec3::ZERO; cam.len()];
+    for tri in triangles {
+        let x = tri.map(|v| cam[v as usize]);
+        let m = (x[1] - x[0]).cross(x[2] - x[0]);
+        for &v in tri {
+            normals[v as usize] += m;
+        }
+    }
+    normals
+        .iter()
+        .map(|m| {
+            let lit = if m.length() > 0.0 {
+                m.normalize().dot(light)
+            } else {
+                0.0
+            };
+            shading.ambient + (1.0 - shading.ambient) * lit.max(0.0)
+        })
+        .collect()
+}
+
 /// Evaluates the model at object-space `positions` and per-view `poses`.
 pub fn evaluate(problem: &Problem, positions: &[DVec3], poses: &[RigidPose]) -> Output {
-    let channels = problem.attributes.map_or(1, |(_, n)| n);
+    let channels = match problem.shading {
+        Some(_) => 1,
+        None => problem.attributes.map_or(1, |(_, n)| n),
+    };
     let mut offset_ids = 0;
     let mut offset_distance = 0;
     let mut view_losses = Vec::new();
@@ -280,14 +316,18 @@ pub fn evaluate(problem: &Problem, positions: &[DVec3], poses: &[RigidPose]) -> 
     for (camera, pose) in problem.cameras.iter().zip(poses) {
         let n = camera.width as usize * camera.height as usize;
         let (w, h) = (camera.width as f64, camera.height as f64);
+        let cam: Vec<DVec3> = positions
+            .iter()
+            .map(|&x| pose.rotation * x + pose.translation)
+            .collect();
         let model = ViewModel {
             problem,
             camera: *camera,
             ids: &problem.ids[offset_ids..offset_ids + n],
-            cam: positions
-                .iter()
-                .map(|&x| pose.rotation * x + pose.translation)
-                .collect(),
+            shade: problem
+                .shading
+                .map_or_else(Vec::new, |s| lambert(&s, problem.triangles, &cam)),
+            cam,
             scale: DVec2::new(2.0 * camera.fx / w, 2.0 * camera.fy / h),
             shift: DVec2::new(2.0 * camera.cx / w - 1.0, 2.0 * camera.cy / h - 1.0),
         };

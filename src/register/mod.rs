@@ -566,6 +566,7 @@ impl<'a> Task<'a> {
                 loss: params.loss,
                 observed: job.observed,
                 attributes: None,
+                shading: None,
             },
         )?;
         let to_code = optimizer_coordinates(space, params.optimizer);

@@ -96,6 +96,7 @@ pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
                 loss: args.loss,
                 observed: &mask,
                 attributes: None,
+                shading: None,
             },
         )?;
         let stamps = Timestamps::new(ctx, 3)?;

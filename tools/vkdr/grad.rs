@@ -33,6 +33,7 @@ pub fn run(
             loss,
             observed: &mask,
             attributes: None,
+            shading: None,
         },
     )?;
     let result = scene.evaluate(ctx, &renderer)?;
