@@ -17,12 +17,13 @@ use glam::{DMat3, DVec3};
 use crate::camera::{Camera, Pose};
 use crate::cpd::CpdParams;
 use crate::dataset::Rng;
+use crate::diff::{Scene, SceneDesc, Shading};
 use crate::error::Result;
 use crate::gpu::Context;
 use crate::loss::Loss;
 use crate::mesh::Mesh;
 use crate::raster::{Outputs, View};
-use crate::register::{Optimizer, RegisterParams, Registrar};
+use crate::register::{Job, Optimizer, RegisterParams, Registrar};
 use crate::shape::ShapeSpace;
 
 /// Mean over `a` of the distance to the nearest point of `b`.
@@ -152,6 +153,9 @@ pub struct EvalSettings {
     /// at the true pose (no alignment): how far the silhouette's own optimum lies from the
     /// truth, apart from the start.
     pub from_truth: bool,
+    /// Observe and compare Lambert shading (besides the mask, which the pose alignment
+    /// compares); overrides the registration parameters' own.
+    pub shading: Option<Shading>,
 }
 
 impl Default for EvalSettings {
@@ -183,6 +187,7 @@ impl Default for EvalSettings {
             },
             dims: 5,
             from_truth: false,
+            shading: None,
             cpd: CpdParams::default(),
         }
     }
@@ -280,6 +285,30 @@ pub fn render_mask(
         .collect())
 }
 
+/// The Lambert shading of `mesh` rendered through `view` ([row][column], background 0,
+/// antialiased as the registration renders its own).
+pub fn render_shading(
+    ctx: &Context,
+    registrar: &Registrar,
+    mesh: &Mesh,
+    view: View,
+    shading: Shading,
+) -> Result<Vec<f32>> {
+    let pixels = view.camera.width as usize * view.camera.height as usize;
+    let mut scene = Scene::new(
+        ctx,
+        &SceneDesc {
+            mesh,
+            views: &[view],
+            loss: Loss::Mse,
+            observed: &vec![0.0; pixels],
+            attributes: None,
+            shading: Some(shading),
+        },
+    )?;
+    Ok(scene.evaluate(ctx, registrar.renderer())?.antialiased)
+}
+
 /// Evaluates one test instance against a built shape space.
 pub fn evaluate_instance(
     ctx: &Context,
@@ -314,9 +343,24 @@ pub fn evaluate_instance(
             pose,
         };
         let mask = render_mask(ctx, registrar, test, view)?;
+        let shaded = match settings.shading {
+            Some(shading) => Some(render_shading(ctx, registrar, test, view, shading)?),
+            None => None,
+        };
+        let job = |view| match &shaded {
+            Some(shaded) => Job::new(space, &mask, view).with_shading(shaded),
+            None => Job::new(space, &mask, view),
+        };
+        let known_pose = RegisterParams {
+            shading: settings.shading,
+            ..settings.known_pose
+        };
+        let pose_noise = RegisterParams {
+            shading: settings.shading,
+            ..settings.pose_noise
+        };
 
-        let result =
-            registrar.register(ctx, space, &mask, view, &settings.known_pose, |_, _| {})?;
+        let result = registrar.register(ctx, job(view), &known_pose, |_, _| {})?;
         known.push(error(&result.vertices));
         known_ch.push(chamfer(&test_vertices, &result.vertices));
         iterations.push(result.iterations as f64);
@@ -333,9 +377,9 @@ pub fn evaluate_instance(
         if settings.from_truth {
             let params = RegisterParams {
                 align: 0,
-                ..settings.pose_noise
+                ..pose_noise
             };
-            let result = registrar.register(ctx, space, &mask, view, &params, |_, _| {})?;
+            let result = registrar.register(ctx, job(view), &params, |_, _| {})?;
             from_truth.push(error(&result.vertices));
         }
 
@@ -345,17 +389,11 @@ pub fn evaluate_instance(
             settings.translation_noise,
             settings.rotation_noise,
         );
-        let result = registrar.register(
-            ctx,
-            space,
-            &mask,
-            View {
-                camera: settings.camera,
-                pose: start,
-            },
-            &settings.pose_noise,
-            |_, _| {},
-        )?;
+        let view = View {
+            camera: settings.camera,
+            pose: start,
+        };
+        let result = registrar.register(ctx, job(view), &pose_noise, |_, _| {})?;
         noisy.push(error(&result.vertices));
         noisy_ch.push(chamfer(&test_vertices, &result.vertices));
         noise_iterations.push(result.iterations as f64);

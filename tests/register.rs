@@ -77,7 +77,7 @@ fn latent_code_converges_to_the_known_answer() {
         ..Default::default()
     };
     let result = registrar
-        .register(&ctx, &space, &observed, view, &params, |_, _| {})
+        .register(&ctx, Job::new(&space, &observed, view), &params, |_, _| {})
         .unwrap();
     common::assert_no_validation_errors(&ctx);
     let start = truth.iter().map(|t| t * t).sum::<f64>().sqrt();
@@ -127,7 +127,12 @@ fn pose_and_shape_converge_jointly() {
         ..Default::default()
     };
     let result = registrar
-        .register(&ctx, &space, &observed, view(start), &params, |_, _| {})
+        .register(
+            &ctx,
+            Job::new(&space, &observed, view(start)),
+            &params,
+            |_, _| {},
+        )
         .unwrap();
     common::assert_no_validation_errors(&ctx);
     let before = (start.translation - pose.translation).length();
@@ -172,11 +177,7 @@ fn batched_registrations_match_single_ones() {
     };
     let jobs: Vec<Job> = observations
         .iter()
-        .map(|(view, observed)| Job {
-            space: &space,
-            observed,
-            view: *view,
-        })
+        .map(|(view, observed)| Job::new(&space, observed, *view))
         .collect();
     let batch = registrar
         .register_batch(&ctx, &jobs, &params, |_, _| {})
@@ -184,9 +185,7 @@ fn batched_registrations_match_single_ones() {
     common::assert_no_validation_errors(&ctx);
     assert_eq!(batch.len(), jobs.len());
     for (job, batched) in jobs.iter().zip(&batch) {
-        let single = registrar
-            .register(&ctx, &space, job.observed, job.view, &params, |_, _| {})
-            .unwrap();
+        let single = registrar.register(&ctx, *job, &params, |_, _| {}).unwrap();
         eprintln!(
             "single {:?} ({} it) batched {:?} ({} it)",
             single.code, single.iterations, batched.code, batched.iterations
@@ -226,7 +225,7 @@ fn bfgs_reaches_the_known_shape() {
         ..Default::default()
     };
     let result = registrar
-        .register(&ctx, &space, &observed, view, &params, |_, _| {})
+        .register(&ctx, Job::new(&space, &observed, view), &params, |_, _| {})
         .unwrap();
     common::assert_no_validation_errors(&ctx);
     let mean = space.vertices(&vec![0.0; space.dims()]).unwrap();
@@ -262,7 +261,7 @@ fn bfgs_aligns_then_fits_pose_and_shape() {
     };
     let view = view(start);
     let result = registrar
-        .register(&ctx, &space, &observed, view, &params, |_, _| {})
+        .register(&ctx, Job::new(&space, &observed, view), &params, |_, _| {})
         .unwrap();
     common::assert_no_validation_errors(&ctx);
     assert_eq!(result.iterations, 50, "alignment and fit iterations");
@@ -308,7 +307,7 @@ fn bfgs_stays_finite_on_an_empty_observation() {
             ..Default::default()
         };
         let result = registrar
-            .register(&ctx, &space, &observed, view, &params, |_, _| {})
+            .register(&ctx, Job::new(&space, &observed, view), &params, |_, _| {})
             .unwrap();
         common::assert_no_validation_errors(&ctx);
         assert!(

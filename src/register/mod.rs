@@ -16,7 +16,7 @@ use bytemuck::{Pod, Zeroable};
 use glam::{DMat3, DVec3};
 
 use crate::cpd::linalg::{self, Matrix};
-use crate::diff::{DiffRenderer, Scene, SceneDesc};
+use crate::diff::{DiffRenderer, Scene, SceneDesc, Shading};
 use crate::error::{Error, Result};
 use crate::gpu::{
     spirv, Binding, BindingKind, Buffer, ComputePipeline, Context, Groups, Recorder, Recording,
@@ -97,6 +97,9 @@ pub struct RegisterParams {
     pub rotation_step: f64,
     pub optimizer: Optimizer,
     pub loss: Loss,
+    /// Compare Lambert shading with each job's `shaded` image instead of the mask (the
+    /// pose alignment still compares masks); the loss must be mse.
+    pub shading: Option<Shading>,
     /// Read the loss back every this many iterations; stop when it improved by less than
     /// `plateau` (relative) over the last chunk.
     pub check_every: usize,
@@ -125,6 +128,7 @@ impl Default for RegisterParams {
             rotation_step: 0.02,
             optimizer: Optimizer::Sgd,
             loss: Loss::Mse,
+            shading: None,
             check_every: 10,
             plateau: 1e-4,
         }
@@ -251,23 +255,15 @@ impl Registrar {
         &self.renderer
     }
 
-    /// Registers `space` to one observed mask ([row][column], nonzero = object) seen
-    /// through `view` (its pose is the initial pose). `on_chunk` sees the iterations done
-    /// and the latest loss (progress bars).
+    /// Runs one registration. `on_chunk` sees the iterations done and the latest loss
+    /// (progress bars).
     pub fn register(
         &self,
         ctx: &Context,
-        space: &ShapeSpace,
-        observed: &[f32],
-        view: View,
+        job: Job,
         params: &RegisterParams,
         on_chunk: impl FnMut(usize, f64),
     ) -> Result<Registration> {
-        let job = Job {
-            space,
-            observed,
-            view,
-        };
         let mut results = self.register_batch(ctx, &[job], params, on_chunk)?;
         Ok(results.remove(0))
     }
@@ -297,6 +293,7 @@ impl Registrar {
         let align = RegisterParams {
             iterations: params.align,
             loss: params.align_loss,
+            shading: None,
             ..*params
         };
         let aligned = self.run(ctx, jobs, &align, true, started, 0, &mut on_chunk)?;
@@ -523,12 +520,35 @@ pub struct PassTimes {
 }
 
 /// One registration to run: a shape space, an observed mask ([row][column], nonzero =
-/// object) and the view it was seen through (its pose is the initial pose).
+/// object), optionally the observed shading (grey, [row][column], background 0; compared
+/// when `RegisterParams::shading` is set) and the view it was seen through (its pose is
+/// the initial pose).
 #[derive(Clone, Copy)]
 pub struct Job<'a> {
     pub space: &'a ShapeSpace,
     pub observed: &'a [f32],
+    pub shaded: Option<&'a [f32]>,
     pub view: View,
+}
+
+impl<'a> Job<'a> {
+    /// A registration of `space` to an observed mask seen through `view`.
+    pub fn new(space: &'a ShapeSpace, observed: &'a [f32], view: View) -> Self {
+        Self {
+            space,
+            observed,
+            shaded: None,
+            view,
+        }
+    }
+
+    /// The same with the observed shading too.
+    pub fn with_shading(self, shaded: &'a [f32]) -> Self {
+        Self {
+            shaded: Some(shaded),
+            ..self
+        }
+    }
 }
 
 /// A registration's device buffers and progress.
@@ -558,15 +578,24 @@ impl<'a> Task<'a> {
                 "the bfgs optimizer takes at most {BFGS_MAX_DIMS} latent dimensions, the space has {k}"
             )));
         }
+        let observed = match (params.shading, job.shaded) {
+            (None, _) => job.observed,
+            (Some(_), Some(shaded)) => shaded,
+            (Some(_), None) => {
+                return Err(Error::InvalidInput(
+                    "registration with shading needs the observed shading image".into(),
+                ))
+            }
+        };
         let scene = Scene::new(
             ctx,
             &SceneDesc {
                 mesh: &space.canonical,
                 views: &[job.view],
                 loss: params.loss,
-                observed: job.observed,
+                observed,
                 attributes: None,
-                shading: None,
+                shading: params.shading,
             },
         )?;
         let to_code = optimizer_coordinates(space, params.optimizer);

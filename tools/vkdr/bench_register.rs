@@ -143,18 +143,21 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
     let registrar = Registrar::new(ctx)?;
     let observed = eval::render_mask(ctx, &registrar, &test, View { camera, pose })?;
     let jobs: Vec<Job> = (0..args.batch)
-        .map(|_| Job {
-            space: &space,
-            observed: &observed,
-            view: View {
-                camera,
-                pose: eval::noisy_pose(
-                    pose,
-                    &mut rng,
-                    settings.translation_noise,
-                    settings.rotation_noise,
-                ),
-            },
+        .map(|_| {
+            let start = eval::noisy_pose(
+                pose,
+                &mut rng,
+                settings.translation_noise,
+                settings.rotation_noise,
+            );
+            Job::new(
+                &space,
+                &observed,
+                View {
+                    camera,
+                    pose: start,
+                },
+            )
         })
         .collect();
     let mut params = settings.pose_noise;

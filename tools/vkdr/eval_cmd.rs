@@ -11,7 +11,7 @@ use vkdr::gpu::Context;
 use vkdr::io::{write_atomically, write_npy, write_png};
 use vkdr::plot::{Plot, PALETTE};
 use vkdr::raster::View;
-use vkdr::register::{RegisterParams, Registrar, Registration};
+use vkdr::register::{Job, RegisterParams, Registrar, Registration};
 use vkdr::shape::ShapeSpace;
 use vkdr::Mesh;
 
@@ -54,14 +54,19 @@ pub fn register(
         &image::DynamicImage::ImageRgb8(overlay(observed, &start, w, h)),
     )?;
     let total = params.total_iterations();
-    let result = registrar.register(ctx, space, observed, view, params, |done, loss| {
-        let filled = (done * 30 / total.max(1)).min(30);
-        eprint!(
-            "\r  register [{}{}] {done}/{total} loss {loss:.5}",
-            "#".repeat(filled),
-            ".".repeat(30 - filled)
-        );
-    })?;
+    let result = registrar.register(
+        ctx,
+        Job::new(space, observed, view),
+        params,
+        |done, loss| {
+            let filled = (done * 30 / total.max(1)).min(30);
+            eprint!(
+                "\r  register [{}{}] {done}/{total} loss {loss:.5}",
+                "#".repeat(filled),
+                ".".repeat(30 - filled)
+            );
+        },
+    )?;
     eprintln!();
     let mesh = space.canonical.with_points(&result.vertices)?;
     mesh.save_obj(out.join("deformed.obj"))?;

@@ -256,6 +256,10 @@ struct EvalArgs {
     /// silhouette's optimum lies, apart from the start.
     #[arg(long)]
     from_truth: bool,
+    /// Observe and compare grey Lambert shading as well as the mask (a light above, left
+    /// of and behind the camera; the pose alignment still compares masks).
+    #[arg(long)]
+    shading: bool,
     #[arg(long)]
     out: PathBuf,
 }
@@ -607,6 +611,7 @@ fn eval_command(args: &EvalArgs) -> Result<()> {
     settings.pose_noise.pose_every = args.pose_every;
     settings.pose_noise.align = args.align;
     settings.from_truth = args.from_truth;
+    settings.shading = args.shading.then(vkdr::diff::Shading::default);
     let loss: Option<vkdr::loss::Loss> = args.loss.as_deref().map(str::parse).transpose()?;
     let optimizer: Option<vkdr::register::Optimizer> =
         args.optimizer.as_deref().map(str::parse).transpose()?;
