@@ -7,6 +7,8 @@ mod common;
 use glam::DVec3;
 use vkdr::cpd::CpdParams;
 use vkdr::dataset::{instance, Rng};
+use vkdr::diff::Shading;
+use vkdr::eval;
 use vkdr::raster::{Outputs, Rasterizer, View};
 use vkdr::register::{Job, Optimizer, RegisterParams, Registrar};
 use vkdr::shape::ShapeSpace;
@@ -143,6 +145,80 @@ fn pose_and_shape_converge_jointly() {
     );
     assert!(after < 0.3 * before, "translation {before} -> {after}");
     assert_eq!(result.pose.translation.z as f32, 0.6, "z stays fixed");
+}
+
+/// With the shading observed too, a pose tilted away from the truth comes back while the
+/// shape converges.
+#[test]
+fn shading_brings_back_a_tilted_pose() {
+    let ctx = common::context();
+    let space = space(&ctx);
+    let truth: Vec<f64> = space.training_codes[4].clone();
+    let pose = Pose::new([0.0, 0.0, 0.6], [2.9, 0.3, 0.1]).unwrap();
+    let registrar = Registrar::new(&ctx).unwrap();
+    let mesh = space
+        .canonical
+        .with_points(&space.vertices(&truth).unwrap())
+        .unwrap();
+    let shading = Shading::default();
+    let observed = observe(&ctx, &space, &mesh.points(), view(pose));
+    let shaded = eval::render_shading(&ctx, &registrar, &mesh, view(pose), shading).unwrap();
+    // Tilted 6 degrees about the camera's x axis, shifted 8 mm.
+    let tilt = glam::DMat3::from_rotation_x(6f64.to_radians()) * pose.rotation_matrix();
+    let start = Pose {
+        translation: pose.translation + DVec3::new(0.008, 0.0, 0.0),
+        rotation: glam::DQuat::from_mat3(&tilt).to_scaled_axis(),
+    };
+    let params = RegisterParams {
+        iterations: 60,
+        pose_every: 1,
+        check_every: 60,
+        optimizer: Optimizer::Bfgs,
+        shading: Some(shading),
+        ..Default::default()
+    };
+    let job = Job::new(&space, &observed, view(start)).with_shading(&shaded);
+    let result = registrar.register(&ctx, job, &params, |_, _| {}).unwrap();
+    common::assert_no_validation_errors(&ctx);
+    let angle = |p: Pose| {
+        let r = p.rotation_matrix() * pose.rotation_matrix().transpose();
+        ((r.x_axis.x + r.y_axis.y + r.z_axis.z - 1.0) / 2.0)
+            .clamp(-1.0, 1.0)
+            .acos()
+            .to_degrees()
+    };
+    let code_error = |code: &[f64]| {
+        code.iter()
+            .zip(&truth)
+            .map(|(a, b)| (a - b).powi(2))
+            .sum::<f64>()
+            .sqrt()
+    };
+    let (before, after) = (angle(start), angle(result.pose));
+    let (shift_before, shift_after) = (
+        (start.translation - pose.translation).length(),
+        (result.pose.translation - pose.translation).length(),
+    );
+    let start_code = code_error(&vec![0.0; truth.len()]);
+    eprintln!(
+        "rotation error {before:.2} -> {after:.2} degrees, translation {shift_before} -> \
+         {shift_after}, code error {start_code} -> {}; losses {:?}",
+        code_error(&result.code),
+        result.losses
+    );
+    assert!(
+        after < 0.3 * before,
+        "rotation error {before} -> {after} degrees"
+    );
+    assert!(
+        shift_after < 0.3 * shift_before,
+        "translation {shift_before} -> {shift_after}"
+    );
+    assert!(
+        code_error(&result.code) < 0.3 * start_code,
+        "code {:?}, truth {truth:?}",
+        result.code
+    );
 }
 
 /// Registrations batched in one submission give what each gives alone (up to the order of

@@ -98,10 +98,12 @@ pub struct Shading {
 }
 
 impl Default for Shading {
-    /// A light above, left of and behind the camera.
+    /// A light at the camera (a flash or a ring light): of the directions tried on a
+    /// validation set (also above-left of the camera, and from the side) it registered
+    /// with pose noise best.
     fn default() -> Self {
         Self {
-            light: [-0.3, -0.5, -1.0],
+            light: [0.0, 0.0, -1.0],
             ambient: 0.2,
         }
     }

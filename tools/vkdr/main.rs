@@ -256,12 +256,38 @@ struct EvalArgs {
     /// silhouette's optimum lies, apart from the start.
     #[arg(long)]
     from_truth: bool,
-    /// Observe and compare grey Lambert shading as well as the mask (a light above, left
-    /// of and behind the camera; the pose alignment still compares masks).
-    #[arg(long)]
-    shading: bool,
+    #[command(flatten)]
+    shading: ShadingArgs,
     #[arg(long)]
     out: PathBuf,
+}
+
+#[derive(clap::Args)]
+struct ShadingArgs {
+    /// Observe and compare grey Lambert shading as well as the mask (the pose alignment
+    /// still compares masks).
+    #[arg(long)]
+    shading: bool,
+    /// Direction towards the light in the camera frame (x right, y down, z forward).
+    #[arg(long, requires = "shading", default_value = "0,0,-1")]
+    light: String,
+    /// Ambient term of the shading, in [0, 1).
+    #[arg(long, requires = "shading", default_value_t = vkdr::diff::Shading::default().ambient)]
+    ambient: f64,
+}
+
+impl ShadingArgs {
+    fn shading(&self) -> Result<Option<vkdr::diff::Shading>> {
+        if !self.shading {
+            return Ok(None);
+        }
+        let shading = vkdr::diff::Shading {
+            light: parse_numbers::<3>(&self.light, "--light")?,
+            ambient: self.ambient,
+        };
+        shading.unit_light()?;
+        Ok(Some(shading))
+    }
 }
 
 #[derive(clap::Args)]
@@ -611,7 +637,7 @@ fn eval_command(args: &EvalArgs) -> Result<()> {
     settings.pose_noise.pose_every = args.pose_every;
     settings.pose_noise.align = args.align;
     settings.from_truth = args.from_truth;
-    settings.shading = args.shading.then(vkdr::diff::Shading::default);
+    settings.shading = args.shading.shading()?;
     let loss: Option<vkdr::loss::Loss> = args.loss.as_deref().map(str::parse).transpose()?;
     let optimizer: Option<vkdr::register::Optimizer> =
         args.optimizer.as_deref().map(str::parse).transpose()?;
