@@ -94,6 +94,35 @@ pub fn load_mask(path: &Path, width: u32, height: u32) -> Result<Vec<f32>> {
         .collect())
 }
 
+/// Loads an observed shading image (grey, or colour taken as its luminance) of the given
+/// size as values in [0, 1], [row][column], set to 0 (the background's shade) wherever
+/// `mask` is 0.
+pub fn load_shading(path: &Path, mask: &[f32], width: u32, height: u32) -> Result<Vec<f32>> {
+    let image = image::open(path).map_err(|e| Error::format(path, e.to_string()))?;
+    if (image.width(), image.height()) != (width, height) {
+        return Err(Error::format(
+            path,
+            format!(
+                "shading image is {}x{} but --size is {width}x{height}",
+                image.width(),
+                image.height()
+            ),
+        ));
+    }
+    Ok(image
+        .to_luma16()
+        .pixels()
+        .zip(mask)
+        .map(|(p, &m)| {
+            if m > 0.0 {
+                p.0[0] as f32 / 65535.0
+            } else {
+                0.0
+            }
+        })
+        .collect())
+}
+
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct DistanceConstants {

@@ -29,11 +29,26 @@ pub fn overlay(observed: &[f32], rendered: &[f32], width: u32, height: u32) -> R
     })
 }
 
-/// Runs one registration and writes its outputs.
+/// Observed shading on the left, the registered mesh's on the right (grey).
+fn shading_pair(observed: &[f32], rendered: &[f32], width: u32, height: u32) -> RgbImage {
+    RgbImage::from_fn(2 * width, height, |x, y| {
+        let (image, x) = if x < width {
+            (observed, x)
+        } else {
+            (rendered, x - width)
+        };
+        let v = (255.0 * image[(y * width + x) as usize].clamp(0.0, 1.0)) as u8;
+        Rgb([v, v, v])
+    })
+}
+
+/// Runs one registration (comparing `shaded` too when `params.shading` is set) and writes
+/// its outputs.
 pub fn register(
     ctx: &Context,
     space: &ShapeSpace,
     observed: &[f32],
+    shaded: Option<&[f32]>,
     view: View,
     params: &RegisterParams,
     out: &Path,
@@ -54,35 +69,37 @@ pub fn register(
         &image::DynamicImage::ImageRgb8(overlay(observed, &start, w, h)),
     )?;
     let total = params.total_iterations();
-    let result = registrar.register(
-        ctx,
-        Job::new(space, observed, view),
-        params,
-        |done, loss| {
-            let filled = (done * 30 / total.max(1)).min(30);
-            eprint!(
-                "\r  register [{}{}] {done}/{total} loss {loss:.5}",
-                "#".repeat(filled),
-                ".".repeat(30 - filled)
-            );
-        },
-    )?;
+    let job = match shaded {
+        Some(shaded) => Job::new(space, observed, view).with_shading(shaded),
+        None => Job::new(space, observed, view),
+    };
+    let result = registrar.register(ctx, job, params, |done, loss| {
+        let filled = (done * 30 / total.max(1)).min(30);
+        eprint!(
+            "\r  register [{}{}] {done}/{total} loss {loss:.5}",
+            "#".repeat(filled),
+            ".".repeat(30 - filled)
+        );
+    })?;
     eprintln!();
     let mesh = space.canonical.with_points(&result.vertices)?;
     mesh.save_obj(out.join("deformed.obj"))?;
-    let end = eval::render_mask(
-        ctx,
-        &registrar,
-        &mesh,
-        View {
-            camera: view.camera,
-            pose: result.pose,
-        },
-    )?;
+    let end_view = View {
+        camera: view.camera,
+        pose: result.pose,
+    };
+    let end = eval::render_mask(ctx, &registrar, &mesh, end_view)?;
     write_png(
         &out.join("overlay_end.png"),
         &image::DynamicImage::ImageRgb8(overlay(observed, &end, w, h)),
     )?;
+    if let (Some(shading), Some(shaded)) = (params.shading, shaded) {
+        let end = eval::render_shading(ctx, &registrar, &mesh, end_view, shading)?;
+        write_png(
+            &out.join("shading_end.png"),
+            &image::DynamicImage::ImageRgb8(shading_pair(shaded, &end, w, h)),
+        )?;
+    }
     write_npy(
         &out.join("code.npy"),
         &ndarray::Array1::from_vec(result.code.clone()),

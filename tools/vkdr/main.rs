@@ -193,6 +193,12 @@ struct RegisterArgs {
     observed_mesh: Option<PathBuf>,
     #[arg(long, allow_hyphen_values = true)]
     true_pose: Option<String>,
+    /// With --shading and --observed: the observed shading, a grey PNG of exactly --size
+    /// (colour is taken as its luminance; pixels off the mask count as background).
+    #[arg(long, requires = "shading")]
+    observed_shading: Option<PathBuf>,
+    #[command(flatten)]
+    shading: ShadingArgs,
     /// The camera and the initial pose.
     #[command(flatten)]
     view: ViewArgs,
@@ -576,15 +582,31 @@ fn register(args: &RegisterArgs) -> Result<()> {
     let view = args.view.view()?;
     let ctx = Context::new()?;
     let (w, h) = (view.camera.width, view.camera.height);
-    let observed = match (&args.observed, &args.observed_mesh) {
-        (Some(mask), _) => vkdr::loss::load_mask(mask, w, h)?,
+    let shading = args.shading.shading()?;
+    let (observed, shaded) = match (&args.observed, &args.observed_mesh) {
+        (Some(mask), _) => {
+            let mask = vkdr::loss::load_mask(mask, w, h)?;
+            let shaded = match (shading, &args.observed_shading) {
+                (None, _) => None,
+                (Some(_), Some(path)) => Some(vkdr::loss::load_shading(path, &mask, w, h)?),
+                (Some(_), None) => anyhow::bail!(
+                    "--shading with --observed needs the observed image too (--observed-shading)"
+                ),
+            };
+            (mask, shaded)
+        }
         (None, Some(mesh)) => {
             let truth = match &args.true_pose {
                 Some(p) => parse_view(&args.view.intrinsics, &args.view.size, p, args.view.near)?,
                 None => view,
             };
             let registrar = vkdr::register::Registrar::new(&ctx)?;
-            vkdr::eval::render_mask(&ctx, &registrar, &Mesh::load_obj(mesh)?, truth)?
+            let mesh = Mesh::load_obj(mesh)?;
+            let shaded = shading
+                .map(|s| vkdr::eval::render_shading(&ctx, &registrar, &mesh, truth, s))
+                .transpose()?;
+            let mask = vkdr::eval::render_mask(&ctx, &registrar, &mesh, truth)?;
+            (mask, shaded)
         }
         (None, None) => anyhow::bail!("give --observed MASK.png or --observed-mesh TEST.obj"),
     };
@@ -600,9 +622,18 @@ fn register(args: &RegisterArgs) -> Result<()> {
         iterations: args.iterations.unwrap_or(base.iterations),
         loss: args.loss.parse()?,
         optimizer: optimizer.unwrap_or(base.optimizer),
+        shading,
         ..base
     };
-    let result = eval_cmd::register(&ctx, &space, &observed, view, &params, &args.out)?;
+    let result = eval_cmd::register(
+        &ctx,
+        &space,
+        &observed,
+        shaded.as_deref(),
+        view,
+        &params,
+        &args.out,
+    )?;
     println!(
         "{} iterations in {:.1} ms ({:.2} ms per iteration); loss {:.5} -> {:.5}; code {:?}",
         result.iterations,
@@ -617,8 +648,9 @@ fn register(args: &RegisterArgs) -> Result<()> {
             .collect::<Vec<_>>()
     );
     println!(
-        "wrote {0}/deformed.obj, pose.json, code.npy, log.json, overlay_start.png, overlay_end.png",
-        args.out.display()
+        "wrote {0}/deformed.obj, pose.json, code.npy, log.json, overlay_start.png, overlay_end.png{1}",
+        args.out.display(),
+        if shading.is_some() { ", shading_end.png" } else { "" }
     );
     Ok(())
 }
@@ -748,6 +780,29 @@ fn demo(out: &Path) -> Result<()> {
         row.ms,
         row.ms_per_iteration
     );
+    let shaded_settings = vkdr::eval::EvalSettings {
+        shading: Some(vkdr::diff::Shading::default()),
+        ..settings.clone()
+    };
+    let shaded = vkdr::eval::evaluate_instance(
+        &ctx,
+        &registrar,
+        &space,
+        "bottle",
+        "test_00",
+        &test,
+        &shaded_settings,
+        |_, _| {},
+    )?;
+    println!(
+        "   with the shading observed too (a light at the camera): known pose {:.2} mm ({:.2}x) | pose noise {:.2} +- {:.2} mm ({:.2}x) | {:.0} ms",
+        1e3 * shaded.known_pose.mean,
+        shaded.known_pose.mean / shaded.oracle,
+        1e3 * shaded.pose_noise.mean,
+        1e3 * shaded.pose_noise.std,
+        shaded.pose_noise.mean / shaded.oracle,
+        shaded.ms,
+    );
 
     // 4. One registration with pose noise, with pictures.
     let truth = vkdr::eval::view_pose(0.8, 0.5, settings.distance);
@@ -765,6 +820,7 @@ fn demo(out: &Path) -> Result<()> {
         &ctx,
         &space,
         &mask,
+        None,
         View {
             camera: settings.camera,
             pose: start,
