@@ -7,7 +7,7 @@
 
 mod common;
 
-use vkdr::loss::{load_mask, reference, DistanceField};
+use vkdr::loss::{load_mask, load_shading, reference, DistanceField};
 
 fn shapes(width: u32, height: u32) -> Vec<(&'static str, Vec<f32>)> {
     let at = |f: &dyn Fn(f64, f64) -> bool| -> Vec<f32> {
@@ -102,5 +102,24 @@ fn a_mask_of_the_wrong_size_is_an_error() {
         .save(&path)
         .unwrap();
     assert!(load_mask(&path, 20, 10).unwrap().iter().all(|&m| m == 0.0));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_shading_image_is_grey_on_the_mask_and_background_off_it() {
+    let dir = std::env::temp_dir().join(format!("vkdr-shading-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("shading.png");
+    let mut picture = image::GrayImage::from_pixel(4, 2, image::Luma([51]));
+    picture.put_pixel(1, 0, image::Luma([255]));
+    picture.save(&path).unwrap();
+    let mask = [1.0, 1.0, 0.0, 1.0, 0.0, 0.0, 1.0, 1.0];
+    let err = load_shading(&path, &mask, 2, 4).unwrap_err().to_string();
+    assert!(err.contains("4x2") && err.contains("2x4"), "{err}");
+    let shading = load_shading(&path, &mask, 4, 2).unwrap();
+    let want = [0.2, 1.0, 0.0, 0.2, 0.0, 0.0, 0.2, 0.2];
+    for (got, want) in shading.iter().zip(want) {
+        assert!((got - want).abs() < 1e-6, "{shading:?}");
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }

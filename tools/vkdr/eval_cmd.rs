@@ -268,13 +268,18 @@ pub fn write_reports(
          oracle: least-squares latent fit to CPD of the canonical onto the true instance; \
          ratio = error / oracle error; chamfer = symmetric chamfer distance of the vertex sets (mm). \
          Registration: known pose, {} for {} iterations ({} loss); pose noise, the pose aligned alone for {} iterations ({} loss), \
-         then pose and shape by {} for {} ({} loss).{}\n\n\
+         then pose and shape by {} for {} ({} loss).{}{}\n\n\
          | category | instance | oracle | known pose | ratio | pose noise | ratio | worst noise trial | chamfer oracle / known / noise | iterations known / noise | ms known / noise |{}\n|---|---|---|---|---|---|---|---|---|---|---|{}\n",
         c.fx, c.fy, c.cx, c.cy, c.width, c.height, settings.distance,
         settings.elevation.0.to_degrees(), settings.elevation.1.to_degrees(), settings.trials, settings.seed,
         100.0 * settings.translation_noise, settings.rotation_noise.to_degrees(), eval::SAMPLE_POINTS,
         known.optimizer.name(), known.iterations, known.loss.name(), noisy.align, noisy.align_loss.name(),
         noisy.optimizer.name(), noisy.iterations, noisy.loss.name(),
+        settings.shading.map_or(String::new(), |s| format!(
+            " Observed: the mask and grey Lambert shading (light towards {:?} in the camera frame, ambient {}); \
+             the registrations compare the shading (mse) after the alignment.",
+            s.light, s.ambient
+        )),
         if settings.from_truth { " From true pose: pose and shape as with pose noise, but starting at the true pose (no alignment)." } else { "" },
         if settings.from_truth { " from true pose | ratio |" } else { "" },
         if settings.from_truth { "---|---|" } else { "" },
