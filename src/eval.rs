@@ -333,6 +333,14 @@ pub fn evaluate_instance(
     let mut curve_known = vec![0.0; settings.known_pose.total_iterations()];
     let mut curve_noise = vec![0.0; settings.pose_noise.total_iterations()];
     let mut ms_per_iteration = Vec::new();
+    let known_pose = RegisterParams {
+        shading: settings.shading,
+        ..settings.known_pose
+    };
+    let pose_noise = RegisterParams {
+        shading: settings.shading,
+        ..settings.pose_noise
+    };
     for trial in 0..settings.trials {
         progress(trial, settings.trials);
         let azimuth = rng.range(0.0, std::f64::consts::TAU);
@@ -347,17 +355,9 @@ pub fn evaluate_instance(
             Some(shading) => Some(render_shading(ctx, registrar, test, view, shading)?),
             None => None,
         };
-        let job = |view| match &shaded {
-            Some(shaded) => Job::new(space, &mask, view).with_shading(shaded),
-            None => Job::new(space, &mask, view),
-        };
-        let known_pose = RegisterParams {
-            shading: settings.shading,
-            ..settings.known_pose
-        };
-        let pose_noise = RegisterParams {
-            shading: settings.shading,
-            ..settings.pose_noise
+        let job = |view| Job {
+            shaded: shaded.as_deref(),
+            ..Job::new(space, &mask, view)
         };
 
         let result = registrar.register(ctx, job(view), &known_pose, |_, _| {})?;

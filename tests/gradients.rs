@@ -308,17 +308,23 @@ fn mse_of_interpolated_colour() {
     assert!(report.loss > 0.0);
 }
 
+/// Adds a view from another side, of the same size, observing the first view's image
+/// turned upside down.
+fn add_second_view(case: &mut Case) {
+    case.views.push(View {
+        camera: camera(case.views[0].camera.width),
+        pose: Pose::new([-0.02, 0.01, 0.5], [1.2, 0.3, -0.4]).unwrap(),
+    });
+    let image = case.observed.clone();
+    case.observed.extend(image.iter().rev());
+}
+
 /// A grey disc (the sphere's mean shade, about) to compare the sphere's shading with.
 fn grey_disc_case(views: usize) -> Case {
     let mut case = sphere_case(Loss::Mse, 0.1, 0.45, 48);
     case.shading = Some(Shading::default());
     if views == 2 {
-        case.views.push(View {
-            camera: camera(48),
-            pose: Pose::new([-0.02, 0.01, 0.5], [1.2, 0.3, -0.4]).unwrap(),
-        });
-        let mask = case.observed.clone();
-        case.observed.extend(mask.iter().rev());
+        add_second_view(&mut case);
     }
     case.observed.iter_mut().for_each(|v| *v *= 0.6);
     case
@@ -472,12 +478,6 @@ fn object_of_one_kilometre() {
 #[test]
 fn several_views_in_one_submission() {
     let mut case = sphere_case(Loss::Mse, 0.1, 0.45, 48);
-    let second = View {
-        camera: camera(48),
-        pose: Pose::new([-0.02, 0.01, 0.5], [1.2, 0.3, -0.4]).unwrap(),
-    };
-    case.views.push(second);
-    let mask = case.observed.clone();
-    case.observed.extend(mask.iter().rev());
+    add_second_view(&mut case);
     assert_gradients_match(&case);
 }

@@ -332,9 +332,14 @@ impl Scene {
                 })
             }
         };
-        let attributes = match (desc.attributes, &lambert) {
-            (None, None) => None,
-            (None, Some(_)) => Some((None, 1)),
+        // Every view has its own attributes: given ones repeated, shading's written on the
+        // device.
+        let (attributes, channels) = match (desc.attributes, &lambert) {
+            (None, None) => (Buffer::from_slice(ctx, "attributes", &[0.0f32])?, 0),
+            (None, Some(_)) => (
+                Buffer::new(ctx, "shading", n as u64 * vertices * 4, BufferKind::Device)?,
+                1,
+            ),
             (Some((values, channels)), _) => {
                 if !(1..=4).contains(&channels)
                     || values.len() != desc.mesh.vertex_count() * channels as usize
@@ -345,33 +350,21 @@ impl Scene {
                         desc.mesh.vertex_count()
                     )));
                 }
-                if desc.loss != Loss::Mse {
-                    return Err(Error::InvalidInput(format!(
-                        "the {} loss compares masks; use mse with attributes",
-                        desc.loss.name()
-                    )));
-                }
-                Some((Some(values), channels))
+                let repeated = values.repeat(n as usize);
+                (Buffer::from_slice(ctx, "attributes", &repeated)?, channels)
             }
         };
-        if lambert.is_some() && desc.loss != Loss::Mse {
+        if channels > 0 && desc.loss != Loss::Mse {
+            let compared = if lambert.is_some() {
+                "shading"
+            } else {
+                "attributes"
+            };
             return Err(Error::InvalidInput(format!(
-                "the {} loss compares masks; use mse with shading",
+                "the {} loss compares masks; use mse with {compared}",
                 desc.loss.name()
             )));
         }
-        let channels = attributes.map_or(0, |(_, c)| c);
-        // Every view has its own attributes: given ones repeated, shading's written on the
-        // device.
-        let attributes = match attributes {
-            None => Buffer::from_slice(ctx, "attributes", &[0.0f32])?,
-            Some((Some(values), _)) => {
-                Buffer::from_slice(ctx, "attributes", &values.repeat(n as usize))?
-            }
-            Some((None, _)) => {
-                Buffer::new(ctx, "shading", n as u64 * vertices * 4, BufferKind::Device)?
-            }
-        };
         let image_channels = channels.max(1) as u64;
         if desc.observed.len() as u64 != pixels * image_channels {
             return Err(Error::InvalidInput(format!(

@@ -70,18 +70,7 @@ impl std::str::FromStr for Loss {
 /// channel is ignored: opaque black is background). A size other
 /// than `width` x `height` is an error (never a silent resize).
 pub fn load_mask(path: &Path, width: u32, height: u32) -> Result<Vec<f32>> {
-    let image = image::open(path).map_err(|e| Error::format(path, e.to_string()))?;
-    if (image.width(), image.height()) != (width, height) {
-        return Err(Error::format(
-            path,
-            format!(
-                "mask is {}x{} but --size is {width}x{height}",
-                image.width(),
-                image.height()
-            ),
-        ));
-    }
-    let rgb = image.to_rgb8();
+    let rgb = open_image(path, "mask", width, height)?.to_rgb8();
     Ok(rgb
         .pixels()
         .map(|p| {
@@ -94,22 +83,27 @@ pub fn load_mask(path: &Path, width: u32, height: u32) -> Result<Vec<f32>> {
         .collect())
 }
 
-/// Loads an observed shading image (grey, or colour taken as its luminance) of the given
-/// size as values in [0, 1], [row][column], set to 0 (the background's shade) wherever
-/// `mask` is 0.
-pub fn load_shading(path: &Path, mask: &[f32], width: u32, height: u32) -> Result<Vec<f32>> {
+/// Opens the image `path` (a `what`, for errors), which must be `width` x `height`.
+fn open_image(path: &Path, what: &str, width: u32, height: u32) -> Result<image::DynamicImage> {
     let image = image::open(path).map_err(|e| Error::format(path, e.to_string()))?;
     if (image.width(), image.height()) != (width, height) {
         return Err(Error::format(
             path,
             format!(
-                "shading image is {}x{} but --size is {width}x{height}",
+                "{what} is {}x{} but --size is {width}x{height}",
                 image.width(),
                 image.height()
             ),
         ));
     }
-    Ok(image
+    Ok(image)
+}
+
+/// Loads an observed shading image (grey, or colour taken as its luminance) of the given
+/// size as values in [0, 1], [row][column], set to 0 (the background's shade) wherever
+/// `mask` is 0.
+pub fn load_shading(path: &Path, mask: &[f32], width: u32, height: u32) -> Result<Vec<f32>> {
+    Ok(open_image(path, "shading image", width, height)?
         .to_luma16()
         .pixels()
         .zip(mask)

@@ -69,9 +69,9 @@ pub fn register(
         &image::DynamicImage::ImageRgb8(overlay(observed, &start, w, h)),
     )?;
     let total = params.total_iterations();
-    let job = match shaded {
-        Some(shaded) => Job::new(space, observed, view).with_shading(shaded),
-        None => Job::new(space, observed, view),
+    let job = Job {
+        shaded,
+        ..Job::new(space, observed, view)
     };
     let result = registrar.register(ctx, job, params, |done, loss| {
         let filled = (done * 30 / total.max(1)).min(30);

@@ -275,11 +275,19 @@ struct ShadingArgs {
     #[arg(long)]
     shading: bool,
     /// Direction towards the light in the camera frame (x right, y down, z forward).
-    #[arg(long, requires = "shading", default_value = "0,0,-1")]
+    #[arg(long, requires = "shading", default_value_t = default_light())]
     light: String,
     /// Ambient term of the shading, in [0, 1).
     #[arg(long, requires = "shading", default_value_t = vkdr::diff::Shading::default().ambient)]
     ambient: f64,
+}
+
+/// `Shading::default()`'s light as the flag writes it.
+fn default_light() -> String {
+    vkdr::diff::Shading::default()
+        .light
+        .map(|v| v.to_string())
+        .join(",")
 }
 
 impl ShadingArgs {
