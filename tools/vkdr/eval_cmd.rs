@@ -231,7 +231,7 @@ fn category_table(rows: &[Row]) -> String {
     categories.dedup();
     let mut md = String::from(
         "\nPer category (means over its test instances; ratio = mean error / mean oracle error):\n\n\
-         | category | oracle | known pose | ratio | pose noise | ratio | worst noise trial |\n|---|---|---|---|---|---|---|\n",
+         | category | oracle | known pose | ratio | pose noise | ratio | worst noise trial | noise, placed (ratio) |\n|---|---|---|---|---|---|---|---|\n",
     );
     for category in categories {
         let of: Vec<&Row> = rows.iter().filter(|r| r.category == category).collect();
@@ -239,14 +239,17 @@ fn category_table(rows: &[Row]) -> String {
         let oracle = mean(&|r| r.oracle);
         let (known, noise) = (mean(&|r| r.known_pose.mean), mean(&|r| r.pose_noise.mean));
         let worst = of.iter().map(|r| r.pose_noise_worst).fold(0.0, f64::max);
+        let placed = mean(&|r| r.pose_noise_placed.mean);
         md.push_str(&format!(
-            "| {category} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} |\n",
+            "| {category} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} ({:.2}) |\n",
             1e3 * oracle,
             1e3 * known,
             known / oracle,
             1e3 * noise,
             noise / oracle,
-            1e3 * worst
+            1e3 * worst,
+            1e3 * placed,
+            placed / oracle
         ));
     }
     md
@@ -266,10 +269,12 @@ pub fn write_reports(
          (elevation {:.0}-{:.0} deg) at random azimuth; {} trials per instance (seed {}). Pose noise: uniform +-{} cm in x and y, +-{:.0} deg about each axis. \
          Error: mean distance (mm) from {} points sampled uniformly on the test surface to the deformed canonical's surface; \
          oracle: least-squares latent fit to CPD of the canonical onto the true instance; \
-         ratio = error / oracle error; chamfer = symmetric chamfer distance of the vertex sets (mm). \
+         ratio = error / oracle error; chamfer = symmetric chamfer distance of the vertex sets (mm); \
+         placed: the pose-noise error after moving each registered shape so that its vertex centroid is the oracle fit's \
+         (one view cannot tell a shape shifted in its frame from a shifted pose). \
          Registration: known pose, {} for {} iterations ({} loss); pose noise, the pose aligned alone for {} iterations ({} loss), \
          then pose and shape by {} for {} ({} loss).{}{}\n\n\
-         | category | instance | oracle | known pose | ratio | pose noise | ratio | worst noise trial | chamfer oracle / known / noise | iterations known / noise | ms known / noise |{}\n|---|---|---|---|---|---|---|---|---|---|---|{}\n",
+         | category | instance | oracle | known pose | ratio | pose noise | ratio | worst noise trial | noise, placed | chamfer oracle / known / noise | iterations known / noise | ms known / noise |{}\n|---|---|---|---|---|---|---|---|---|---|---|---|{}\n",
         c.fx, c.fy, c.cx, c.cy, c.width, c.height, settings.distance,
         settings.elevation.0.to_degrees(), settings.elevation.1.to_degrees(), settings.trials, settings.seed,
         100.0 * settings.translation_noise, settings.rotation_noise.to_degrees(), eval::SAMPLE_POINTS,
@@ -284,18 +289,19 @@ pub fn write_reports(
         if settings.from_truth { " from true pose | ratio |" } else { "" },
         if settings.from_truth { "---|---|" } else { "" },
     );
-    let mut csv = String::from("category,instance,oracle,known_pose_mean,known_pose_std,pose_noise_mean,pose_noise_std,iterations,ms,oracle_chamfer,known_pose_chamfer,pose_noise_chamfer,noise_iterations,noise_ms,from_truth_mean,from_truth_std\n");
+    let mut csv = String::from("category,instance,oracle,known_pose_mean,known_pose_std,pose_noise_mean,pose_noise_std,iterations,ms,oracle_chamfer,known_pose_chamfer,pose_noise_chamfer,noise_iterations,noise_ms,from_truth_mean,from_truth_std,pose_noise_placed_mean,pose_noise_placed_std\n");
     let mut json = Vec::new();
     for r in rows {
         md.push_str(&format!(
-            "| {} | {} | {:.2} | {:.2} +- {:.2} | {:.2} | {:.2} +- {:.2} | {:.2} | {:.2} | {:.2} / {:.2} / {:.2} | {:.1} / {:.1} | {:.0} / {:.0} |{}\n",
+            "| {} | {} | {:.2} | {:.2} +- {:.2} | {:.2} | {:.2} +- {:.2} | {:.2} | {:.2} | {:.2} ({:.2}) | {:.2} / {:.2} / {:.2} | {:.1} / {:.1} | {:.0} / {:.0} |{}\n",
             r.category, r.instance, 1e3 * r.oracle, 1e3 * r.known_pose.mean, 1e3 * r.known_pose.std, r.known_pose.mean / r.oracle,
             1e3 * r.pose_noise.mean, 1e3 * r.pose_noise.std, r.pose_noise.mean / r.oracle, 1e3 * r.pose_noise_worst,
+            1e3 * r.pose_noise_placed.mean, r.pose_noise_placed.mean / r.oracle,
             1e3 * r.oracle_chamfer, 1e3 * r.known_pose_chamfer.mean, 1e3 * r.pose_noise_chamfer.mean, r.iterations, r.noise_iterations, r.ms, r.noise_ms,
             r.from_truth.map_or(String::new(), |f| format!(" {:.2} +- {:.2} | {:.2} |", 1e3 * f.mean, 1e3 * f.std, f.mean / r.oracle))
         ));
         csv.push_str(&format!(
-            "{},{},{:e},{:e},{:e},{:e},{:e},{},{:.3},{:e},{:e},{:e},{},{:.3},{},{}\n",
+            "{},{},{:e},{:e},{:e},{:e},{:e},{},{:.3},{:e},{:e},{:e},{},{:.3},{},{},{:e},{:e}\n",
             r.category,
             r.instance,
             r.oracle,
@@ -314,12 +320,19 @@ pub fn write_reports(
                 .map_or(String::new(), |f| format!("{:e}", f.mean)),
             r.from_truth
                 .map_or(String::new(), |f| format!("{:e}", f.std)),
+            r.pose_noise_placed.mean,
+            r.pose_noise_placed.std,
         ));
         json.push(format!(
-            "  {{\"category\": {:?}, \"instance\": {:?}, \"oracle\": {:e}, \"known_pose\": {{\"mean\": {:e}, \"std\": {:e}}}, \"pose_noise\": {{\"mean\": {:e}, \"std\": {:e}}}, \"iterations\": {}, \"ms\": {:.3}, \"chamfer\": {{\"oracle\": {:e}, \"known_pose\": {:e}, \"pose_noise\": {:e}}}, \"noise_iterations\": {}, \"noise_ms\": {:.3}, \"from_truth\": {}}}",
+            "  {{\"category\": {:?}, \"instance\": {:?}, \"oracle\": {:e}, \"known_pose\": {{\"mean\": {:e}, \"std\": {:e}}}, \"pose_noise\": {{\"mean\": {:e}, \"std\": {:e}}}, \"iterations\": {}, \"ms\": {:.3}, \"chamfer\": {{\"oracle\": {:e}, \"known_pose\": {:e}, \"pose_noise\": {:e}}}, \"noise_iterations\": {}, \"noise_ms\": {:.3}, \"from_truth\": {}, \"pose_noise_placed\": {{\"mean\": {:e}, \"std\": {:e}}}, \"shading\": {}}}",
             r.category, r.instance, r.oracle, r.known_pose.mean, r.known_pose.std, r.pose_noise.mean, r.pose_noise.std, r.iterations, r.ms,
             r.oracle_chamfer, r.known_pose_chamfer.mean, r.pose_noise_chamfer.mean, r.noise_iterations, r.noise_ms,
-            r.from_truth.map_or("null".to_string(), |f| format!("{{\"mean\": {:e}, \"std\": {:e}}}", f.mean, f.std))
+            r.from_truth.map_or("null".to_string(), |f| format!("{{\"mean\": {:e}, \"std\": {:e}}}", f.mean, f.std)),
+            r.pose_noise_placed.mean, r.pose_noise_placed.std,
+            settings.shading.map_or("null".to_string(), |s| format!(
+                "{{\"light\": [{:e}, {:e}, {:e}], \"ambient\": {:e}}}",
+                s.light[0], s.light[1], s.light[2], s.ambient
+            ))
         ));
     }
     md.push_str(&category_table(rows));
