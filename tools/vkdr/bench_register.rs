@@ -13,6 +13,7 @@ use glam::DVec3;
 
 use vkdr::camera::parse_size;
 use vkdr::dataset::{instance, Rng};
+use vkdr::diff::Shading;
 use vkdr::eval::{self, surface_error, EvalSettings};
 use vkdr::gpu::Context;
 use vkdr::io::{write_atomically, write_png};
@@ -46,6 +47,9 @@ pub struct Args {
     pub batch: usize,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Observe and compare grey Lambert shading too (the default light, at the camera).
+    #[arg(long)]
+    pub shading: bool,
     /// Reuse the space.npz of an earlier run with the same category, subdivision and seed.
     #[arg(long)]
     pub space: Option<PathBuf>,
@@ -142,6 +146,17 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
     );
     let registrar = Registrar::new(ctx)?;
     let observed = eval::render_mask(ctx, &registrar, &test, View { camera, pose })?;
+    let shading = args.shading.then(Shading::default);
+    let shaded = match shading {
+        Some(s) => Some(eval::render_shading(
+            ctx,
+            &registrar,
+            &test,
+            View { camera, pose },
+            s,
+        )?),
+        None => None,
+    };
     let jobs: Vec<Job> = (0..args.batch)
         .map(|_| {
             let start = eval::noisy_pose(
@@ -150,18 +165,22 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
                 settings.translation_noise,
                 settings.rotation_noise,
             );
-            Job::new(
-                &space,
-                &observed,
-                View {
-                    camera,
-                    pose: start,
-                },
-            )
+            Job {
+                shaded: shaded.as_deref(),
+                ..Job::new(
+                    &space,
+                    &observed,
+                    View {
+                        camera,
+                        pose: start,
+                    },
+                )
+            }
         })
         .collect();
     let mut params = settings.pose_noise;
     params.iterations = args.iterations;
+    params.shading = shading;
     params.check_every = args.iterations; // no plateau stop: every run does all iterations
 
     // One registration, end to end (scene set-up included), after a warm-up.
@@ -222,7 +241,7 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
     let m = space.canonical.vertex_count();
     let summary = format!(
         "# vkdr bench-register\n\nDevice: {device}.\n\
-         One registration of a {category} ({m} vertices, {faces} triangles, {dims}-dimensional space) from a {w}x{h} mask with pose noise \
+         One registration of a {category} ({m} vertices, {faces} triangles, {dims}-dimensional space) from a {w}x{h} mask{observed} with pose noise \
          (+-{tn} cm, +-{rn:.0} deg), the schedule of `vkdr eval`: {align} iterations aligning the pose alone, then {it} of pose and shape \
          ({optimizer}), seed {seed}.\n\n\
          | measure | value |\n|---|---|\n\
@@ -239,6 +258,13 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
          | error at the start (mean shape) / end | {start:.2} / {end:.2} mm ({ratio:.2}x oracle) |\n\
          | batched runs' error / oracle | {batch_errors} |\n",
         category = args.category,
+        observed = match shading {
+            Some(s) => format!(
+                " and its grey Lambert shading (light towards {:?}, ambient {}; compared after the alignment)",
+                s.light, s.ambient
+            ),
+            None => String::new(),
+        },
         faces = space.canonical.triangle_count(),
         dims = space.dims(),
         w = width,
@@ -272,12 +298,13 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
     print!("{summary}");
     write_atomically(&args.out.join("bench_register.md"), summary.as_bytes())?;
     let json = format!(
-        "{{\"device\": {device:?}, \"category\": {:?}, \"vertices\": {m}, \"width\": {}, \"height\": {}, \"iterations\": {}, \
+        "{{\"device\": {device:?}, \"category\": {:?}, \"shading\": {}, \"vertices\": {m}, \"width\": {}, \"height\": {}, \"iterations\": {}, \
          \"wall_ms\": {walls:?}, \"wall_ms_median\": {wall:.3}, \
          \"passes_ms\": {{\"deform\": {:.4}, \"forward\": {:.4}, \"backward\": {:.4}, \"update\": {:.4}, \"total\": {:.4}}}, \
          \"batch\": {}, \"sequential_ms\": {sequential:.3}, \"batched_ms\": {batched:.3}, \"oracle_m\": {oracle:e}, \
          \"curve\": [{}]}}\n",
         args.category,
+        shading.is_some(),
         width,
         height,
         args.iterations,
