@@ -507,6 +507,28 @@ mod tests {
         assert!(surface_error(&sample, &mesh.points(), mesh.triangles()) < 1e-7);
     }
 
+    /// A shape shifted in its frame is placed back exactly; a differently shaped one keeps
+    /// its shape and takes the reference's centroid.
+    #[test]
+    fn placed_like_moves_to_the_reference_centroid() {
+        let mesh = Mesh::bottle(12);
+        let reference = mesh.points();
+        let shift = DVec3::new(0.01, -0.02, 0.005);
+        let shifted: Vec<DVec3> = reference.iter().map(|&v| v + shift).collect();
+        let truth = surface_sample(&mesh, 300, 4);
+        let error = |v: &[DVec3]| surface_error(&truth, v, mesh.triangles());
+        assert!(error(&shifted) > 1e-3);
+        assert!(error(&placed_like(&shifted, &reference)) < 1e-9);
+        let stretched: Vec<DVec3> = reference
+            .iter()
+            .map(|&v| DVec3::new(1.1 * v.x, v.y, v.z) + shift)
+            .collect();
+        let placed = placed_like(&stretched, &reference);
+        let centroid = |v: &[DVec3]| v.iter().copied().sum::<DVec3>() / v.len() as f64;
+        assert!((centroid(&placed) - centroid(&reference)).length() < 1e-12);
+        assert!(((placed[0] - placed[1]) - (stretched[0] - stretched[1])).length() < 1e-12);
+    }
+
     /// The error curve measures every code, once for a run of equal codes.
     #[test]
     fn error_curve_follows_the_codes() {
