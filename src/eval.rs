@@ -21,7 +21,7 @@ use crate::diff::{Scene, SceneDesc, Shading};
 use crate::error::Result;
 use crate::gpu::Context;
 use crate::loss::Loss;
-use crate::mesh::Mesh;
+use crate::mesh::{centroid, Mesh};
 use crate::raster::{Outputs, View};
 use crate::register::{Job, Optimizer, RegisterParams, Registrar};
 use crate::shape::ShapeSpace;
@@ -255,7 +255,7 @@ pub struct Row {
     /// Largest pose-noise error over the trials (divergence check).
     pub pose_noise_worst: f64,
     /// The pose-noise error after moving each registered shape so that its vertex centroid
-    /// is the oracle fit's (see `placed_error`).
+    /// is the oracle fit's (see `placed_like`).
     pub pose_noise_placed: Stat,
     /// With `EvalSettings::from_truth`: pose and shape optimised from the true pose.
     pub from_truth: Option<Stat>,
@@ -317,7 +317,6 @@ pub fn render_shading(
 /// in its own frame from a shifted pose, and the error counts such a shift in full; the
 /// error of the shape placed like the oracle fit shows how much of it is placement.
 pub fn placed_like(vertices: &[DVec3], reference: &[DVec3]) -> Vec<DVec3> {
-    let centroid = |v: &[DVec3]| v.iter().copied().sum::<DVec3>() / v.len().max(1) as f64;
     let shift = centroid(reference) - centroid(vertices);
     vertices.iter().map(|&v| v + shift).collect()
 }
@@ -365,10 +364,10 @@ pub fn evaluate_instance(
             pose,
         };
         let mask = render_mask(ctx, registrar, test, view)?;
-        let shaded = match settings.shading {
-            Some(shading) => Some(render_shading(ctx, registrar, test, view, shading)?),
-            None => None,
-        };
+        let shaded = settings
+            .shading
+            .map(|shading| render_shading(ctx, registrar, test, view, shading))
+            .transpose()?;
         let job = |view| Job {
             shaded: shaded.as_deref(),
             ..Job::new(space, &mask, view)
@@ -524,7 +523,6 @@ mod tests {
             .map(|&v| DVec3::new(1.1 * v.x, v.y, v.z) + shift)
             .collect();
         let placed = placed_like(&stretched, &reference);
-        let centroid = |v: &[DVec3]| v.iter().copied().sum::<DVec3>() / v.len() as f64;
         assert!((centroid(&placed) - centroid(&reference)).length() < 1e-12);
         assert!(((placed[0] - placed[1]) - (stretched[0] - stretched[1])).length() < 1e-12);
     }

@@ -11,6 +11,11 @@ use glam::DVec3;
 
 use crate::error::{Error, Result};
 
+/// The mean of `points` (zero for none).
+pub fn centroid(points: &[DVec3]) -> DVec3 {
+    points.iter().sum::<DVec3>() / points.len().max(1) as f64
+}
+
 /// A welded triangle mesh: shared vertices, one index per corner, counter-clockwise
 /// outward faces.
 #[derive(Clone, Debug, Default, PartialEq)]

@@ -26,6 +26,7 @@ use crate::error::{Error, Result};
 use crate::gpu::{
     spirv, Binding, BindingKind, Buffer, BufferKind, ComputePipeline, Context, Groups, Recorder,
 };
+use crate::mesh::centroid;
 use linalg::Matrix;
 
 const DENOMINATOR: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/cpd_denominator.comp.spv"));
@@ -446,7 +447,7 @@ impl<'a> GpuBackend<'a> {
         target: &[DVec3],
         beta: f64,
     ) -> Result<Self> {
-        let offset = target.iter().sum::<DVec3>() / target.len().max(1) as f64;
+        let offset = centroid(target);
         let (m, n) = (source.len() as u64, target.len() as u64);
         let device = |name, bytes| Buffer::new(ctx, name, bytes, BufferKind::Device);
         Ok(Self {
@@ -579,7 +580,7 @@ pub struct Normalization {
 
 impl Normalization {
     pub fn of(source: &[DVec3]) -> Self {
-        let mean = source.iter().sum::<DVec3>() / source.len().max(1) as f64;
+        let mean = centroid(source);
         let rms = (source
             .iter()
             .map(|p| (*p - mean).length_squared())

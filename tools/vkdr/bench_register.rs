@@ -147,16 +147,9 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
     let registrar = Registrar::new(ctx)?;
     let observed = eval::render_mask(ctx, &registrar, &test, View { camera, pose })?;
     let shading = args.shading.then(Shading::default);
-    let shaded = match shading {
-        Some(s) => Some(eval::render_shading(
-            ctx,
-            &registrar,
-            &test,
-            View { camera, pose },
-            s,
-        )?),
-        None => None,
-    };
+    let shaded = shading
+        .map(|s| eval::render_shading(ctx, &registrar, &test, View { camera, pose }, s))
+        .transpose()?;
     let jobs: Vec<Job> = (0..args.batch)
         .map(|_| {
             let start = eval::noisy_pose(

@@ -290,6 +290,12 @@ pub fn write_reports(
         if settings.from_truth { "---|---|" } else { "" },
     );
     let mut csv = String::from("category,instance,oracle,known_pose_mean,known_pose_std,pose_noise_mean,pose_noise_std,iterations,ms,oracle_chamfer,known_pose_chamfer,pose_noise_chamfer,noise_iterations,noise_ms,from_truth_mean,from_truth_std,pose_noise_placed_mean,pose_noise_placed_std\n");
+    let shading_json = settings.shading.map_or("null".to_string(), |s| {
+        format!(
+            "{{\"light\": [{:e}, {:e}, {:e}], \"ambient\": {:e}}}",
+            s.light[0], s.light[1], s.light[2], s.ambient
+        )
+    });
     let mut json = Vec::new();
     for r in rows {
         md.push_str(&format!(
@@ -328,11 +334,7 @@ pub fn write_reports(
             r.category, r.instance, r.oracle, r.known_pose.mean, r.known_pose.std, r.pose_noise.mean, r.pose_noise.std, r.iterations, r.ms,
             r.oracle_chamfer, r.known_pose_chamfer.mean, r.pose_noise_chamfer.mean, r.noise_iterations, r.noise_ms,
             r.from_truth.map_or("null".to_string(), |f| format!("{{\"mean\": {:e}, \"std\": {:e}}}", f.mean, f.std)),
-            r.pose_noise_placed.mean, r.pose_noise_placed.std,
-            settings.shading.map_or("null".to_string(), |s| format!(
-                "{{\"light\": [{:e}, {:e}, {:e}], \"ambient\": {:e}}}",
-                s.light[0], s.light[1], s.light[2], s.ambient
-            ))
+            r.pose_noise_placed.mean, r.pose_noise_placed.std, shading_json
         ));
     }
     md.push_str(&category_table(rows));
