@@ -269,6 +269,53 @@ pub struct Row {
     pub curve_known: Vec<f64>,
     pub curve_noise: Vec<f64>,
     pub ms_per_iteration: f64,
+    /// Each trial's view and errors.
+    pub trials: Vec<Trial>,
+}
+
+/// One trial of a test instance: the view, the errors and the pose error with pose noise.
+#[derive(Clone, Copy, Debug)]
+pub struct Trial {
+    /// The view, radians.
+    pub azimuth: f64,
+    pub elevation: f64,
+    /// Angle (radians, 0 to pi/2) between the line of sight and the test instance's longest
+    /// bounding-box axis: near 0 the view is end-on, and the object's length lies along
+    /// the line of sight, where one view sees it least.
+    pub axis_angle: f64,
+    pub known_pose: f64,
+    pub pose_noise: f64,
+    pub pose_noise_placed: f64,
+    /// The registered pose against the true one with pose noise: rotation (radians) and
+    /// translation (metres).
+    pub rotation_error: f64,
+    pub translation_error: f64,
+}
+
+/// Angle (radians, 0 to pi/2) between the line of sight from the camera to the object's
+/// origin through `pose` and the object-frame `axis` (either way along it).
+pub fn line_of_sight_angle(pose: Pose, axis: DVec3) -> f64 {
+    let sight = pose.rotation_matrix().transpose() * pose.translation.normalize();
+    sight.dot(axis.normalize()).abs().min(1.0).acos()
+}
+
+/// The object-frame unit axis along which `mesh`'s bounding box is longest.
+pub fn longest_axis(mesh: &Mesh) -> DVec3 {
+    let (lo, hi) = mesh.bounds();
+    let extent = DVec3::from_array(std::array::from_fn(|k| (hi[k] - lo[k]) as f64));
+    let k = (0..3).fold(0, |best, k| if extent[k] > extent[best] { k } else { best });
+    DVec3::from_array(std::array::from_fn(|j| if j == k { 1.0 } else { 0.0 }))
+}
+
+/// Rotation (radians) and translation (metres) from `truth` to `estimate`.
+pub fn pose_error(estimate: Pose, truth: Pose) -> (f64, f64) {
+    let relative = estimate.rotation_matrix() * truth.rotation_matrix().transpose();
+    let cos =
+        ((relative.x_axis.x + relative.y_axis.y + relative.z_axis.z - 1.0) / 2.0).clamp(-1.0, 1.0);
+    (
+        cos.acos(),
+        (estimate.translation - truth.translation).length(),
+    )
 }
 
 /// The mask of `mesh` rendered through `view`.
@@ -340,6 +387,8 @@ pub fn evaluate_instance(
     let mut rng = Rng::new(settings.seed ^ hash(name));
     let (mut known, mut known_ch, mut noisy, mut noisy_ch) = (vec![], vec![], vec![], vec![]);
     let mut placed = Vec::new();
+    let mut trials = Vec::new();
+    let axis = longest_axis(test);
     let mut from_truth = Vec::new();
     let (mut iterations, mut ms, mut noise_iterations, mut noise_ms) =
         (vec![], vec![], vec![], vec![]);
@@ -409,6 +458,17 @@ pub fn evaluate_instance(
         let result = registrar.register(ctx, job(view), &pose_noise, |_, _| {})?;
         noisy.push(error(&result.vertices));
         placed.push(error(&placed_like(&result.vertices, &oracle_vertices)));
+        let (rotation_error, translation_error) = pose_error(result.pose, pose);
+        trials.push(Trial {
+            azimuth,
+            elevation,
+            axis_angle: line_of_sight_angle(pose, axis),
+            known_pose: known[trial],
+            pose_noise: noisy[trial],
+            pose_noise_placed: placed[trial],
+            rotation_error,
+            translation_error,
+        });
         noisy_ch.push(chamfer(&test_vertices, &result.vertices));
         noise_iterations.push(result.iterations as f64);
         noise_ms.push(result.milliseconds);
@@ -440,6 +500,7 @@ pub fn evaluate_instance(
         curve_known,
         curve_noise,
         ms_per_iteration: Stat::of(&ms_per_iteration).mean,
+        trials,
     })
 }
 
@@ -525,6 +586,43 @@ mod tests {
         let placed = placed_like(&stretched, &reference);
         assert!((centroid(&placed) - centroid(&reference)).length() < 1e-12);
         assert!(((placed[0] - placed[1]) - (stretched[0] - stretched[1])).length() < 1e-12);
+    }
+
+    /// Looking down from elevation e, the up axis lies 90 deg - e from the line of sight; at
+    /// azimuth 90 deg the camera looks along the object's x axis; a pose error is the
+    /// rotation and translation put in.
+    #[test]
+    fn views_and_pose_errors_are_measured_in_the_object_frame() {
+        let deg = |a: f64| a.to_radians();
+        for (azimuth, elevation) in [(0.0, 10.0), (deg(130.0), 35.0), (deg(250.0), 60.0)] {
+            let pose = view_pose(azimuth, deg(elevation), 0.7);
+            let angle = line_of_sight_angle(pose, DVec3::Y).to_degrees();
+            assert!(
+                (angle - (90.0 - elevation)).abs() < 1e-9,
+                "{angle} at {elevation}"
+            );
+        }
+        assert!(line_of_sight_angle(view_pose(deg(90.0), 0.0, 0.7), DVec3::X) < 1e-7);
+        let side = line_of_sight_angle(view_pose(0.0, 0.0, 0.7), -DVec3::X);
+        assert!((side - deg(90.0)).abs() < 1e-9);
+
+        let long = Mesh::bottle(8);
+        assert_eq!(longest_axis(&long), DVec3::Y);
+
+        let truth = view_pose(deg(40.0), deg(30.0), 0.7);
+        assert!(pose_error(truth, truth).0 < 1e-7 && pose_error(truth, truth).1 == 0.0);
+        let turn = DMat3::from_axis_angle(DVec3::new(1.0, 2.0, -0.5).normalize(), deg(7.0));
+        let moved = Pose {
+            translation: truth.translation + DVec3::new(0.03, -0.04, 0.0),
+            rotation: glam::DQuat::from_mat3(&(turn * truth.rotation_matrix())).to_scaled_axis(),
+        };
+        let (rotation, translation) = pose_error(moved, truth);
+        assert!(
+            (rotation - deg(7.0)).abs() < 1e-9,
+            "{}",
+            rotation.to_degrees()
+        );
+        assert!((translation - 0.05).abs() < 1e-12);
     }
 
     /// The error curve measures every code, once for a run of equal codes.

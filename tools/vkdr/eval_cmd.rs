@@ -6,7 +6,7 @@ use anyhow::{bail, Context as _, Result};
 use glam::DVec3;
 use image::{Rgb, RgbImage};
 
-use vkdr::eval::{self, EvalSettings, Row};
+use vkdr::eval::{self, EvalSettings, Row, Trial};
 use vkdr::gpu::Context;
 use vkdr::io::{write_atomically, write_npy, write_png};
 use vkdr::plot::{Plot, PALETTE};
@@ -252,7 +252,78 @@ fn category_table(rows: &[Row]) -> String {
             placed / oracle
         ));
     }
+    md.push_str(&view_table(rows));
     md
+}
+
+/// Views within this angle of a test instance's longest axis count as end-on.
+const END_ON: f64 = 30.0;
+
+/// Pose-noise errors split by view: end-on views (the object's length along the line of
+/// sight) against the rest.
+fn view_table(rows: &[Row]) -> String {
+    let mut categories: Vec<&str> = rows.iter().map(|r| r.category.as_str()).collect();
+    categories.dedup();
+    let mut md = format!(
+        "\nPose noise by view (end-on: the line of sight within {END_ON:.0} deg of the test instance's longest axis; \
+         ratio = mean over the trials of error / the instance's oracle error; rotation: mean final rotation error):\n\n\
+         | category | end-on trials | ratio | rotation (deg) | other trials | ratio | rotation (deg) |\n|---|---|---|---|---|---|---|\n"
+    );
+    for category in categories {
+        let trials: Vec<(&Row, &Trial)> = rows
+            .iter()
+            .filter(|r| r.category == category)
+            .flat_map(|r| r.trials.iter().map(move |t| (r, t)))
+            .collect();
+        let summary = |end_on: bool| {
+            let of: Vec<_> = trials
+                .iter()
+                .filter(|(_, t)| (t.axis_angle.to_degrees() < END_ON) == end_on)
+                .collect();
+            if of.is_empty() {
+                return "0 | - | -".to_string();
+            }
+            let n = of.len() as f64;
+            let ratio = of.iter().map(|(r, t)| t.pose_noise / r.oracle).sum::<f64>() / n;
+            let rotation = of
+                .iter()
+                .map(|(_, t)| t.rotation_error.to_degrees())
+                .sum::<f64>()
+                / n;
+            format!("{} | {ratio:.2} | {rotation:.1}", of.len())
+        };
+        md.push_str(&format!(
+            "| {category} | {} | {} |\n",
+            summary(true),
+            summary(false)
+        ));
+    }
+    md
+}
+
+/// One line per trial: the view, the errors, and the pose error with pose noise.
+fn trials_csv(rows: &[Row]) -> String {
+    let mut csv = String::from(
+        "category,instance,trial,azimuth_deg,elevation_deg,axis_angle_deg,known_pose,pose_noise,pose_noise_placed,rotation_error_deg,translation_error\n",
+    );
+    for r in rows {
+        for (i, t) in r.trials.iter().enumerate() {
+            csv.push_str(&format!(
+                "{},{},{i},{:.2},{:.2},{:.2},{:e},{:e},{:e},{:.3},{:e}\n",
+                r.category,
+                r.instance,
+                t.azimuth.to_degrees(),
+                t.elevation.to_degrees(),
+                t.axis_angle.to_degrees(),
+                t.known_pose,
+                t.pose_noise,
+                t.pose_noise_placed,
+                t.rotation_error.to_degrees(),
+                t.translation_error,
+            ));
+        }
+    }
+    csv
 }
 
 pub fn write_reports(
@@ -266,7 +337,7 @@ pub fn write_reports(
     let (known, noisy) = (&settings.known_pose, &settings.pose_noise);
     let mut md = format!(
         "# Registration error (Table 1)\n\nDevice: {device}. Camera: fx {} fy {} cx {} cy {}, {}x{} px; object at {} m; views from the upper hemisphere \
-         (elevation {:.0}-{:.0} deg) at random azimuth; {} trials per instance (seed {}). Pose noise: uniform +-{} cm in x and y, +-{:.0} deg about each axis. \
+         (elevation {:.0}-{:.0} deg) at random azimuth; {} trials per instance (seed {}); shape spaces of up to {} dimensions (fewer where the training instances span fewer). Pose noise: uniform +-{} cm in x and y, +-{:.0} deg about each axis. \
          Error: mean distance (mm) from {} points sampled uniformly on the test surface to the deformed canonical's surface; \
          oracle: least-squares latent fit to CPD of the canonical onto the true instance; \
          ratio = error / oracle error; chamfer = symmetric chamfer distance of the vertex sets (mm); \
@@ -276,7 +347,7 @@ pub fn write_reports(
          then pose and shape by {} for {} ({} loss).{}{}\n\n\
          | category | instance | oracle | known pose | ratio | pose noise | ratio | worst noise trial | noise, placed | chamfer oracle / known / noise | iterations known / noise | ms known / noise |{}\n|---|---|---|---|---|---|---|---|---|---|---|---|{}\n",
         c.fx, c.fy, c.cx, c.cy, c.width, c.height, settings.distance,
-        settings.elevation.0.to_degrees(), settings.elevation.1.to_degrees(), settings.trials, settings.seed,
+        settings.elevation.0.to_degrees(), settings.elevation.1.to_degrees(), settings.trials, settings.seed, settings.dims,
         100.0 * settings.translation_noise, settings.rotation_noise.to_degrees(), eval::SAMPLE_POINTS,
         known.optimizer.name(), known.iterations, known.loss.name(), noisy.align, noisy.align_loss.name(),
         noisy.optimizer.name(), noisy.iterations, noisy.loss.name(),
@@ -340,6 +411,7 @@ pub fn write_reports(
     md.push_str(&category_table(rows));
     write_atomically(&out.join("table.md"), md.as_bytes())?;
     write_atomically(&out.join("table.csv"), csv.as_bytes())?;
+    write_atomically(&out.join("trials.csv"), trials_csv(rows).as_bytes())?;
     write_atomically(
         &out.join("table.json"),
         format!("[\n{}\n]\n", json.join(",\n")).as_bytes(),

@@ -11,7 +11,7 @@ mod shape_cmd;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::{Context as _, Result};
+use anyhow::{bail, Context as _, Result};
 use clap::{Parser, Subcommand};
 use ndarray::s;
 
@@ -232,6 +232,9 @@ struct EvalArgs {
     /// Only these categories (comma-separated).
     #[arg(long)]
     categories: Option<String>,
+    /// Dimensions of each category's shape space (at most its training instances less one).
+    #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().dims)]
+    dims: usize,
     /// Iterations with pose noise, after the alignment's.
     #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.iterations)]
     noise_iterations: usize,
@@ -665,9 +668,13 @@ fn register(args: &RegisterArgs) -> Result<()> {
 
 /// `vkdr eval`: the default settings with the flags' changes.
 fn eval_command(args: &EvalArgs) -> Result<()> {
+    if args.dims == 0 {
+        bail!("--dims must be at least 1");
+    }
     let mut settings = vkdr::eval::EvalSettings {
         trials: args.trials.max(2),
         seed: args.seed,
+        dims: args.dims,
         ..Default::default()
     };
     settings.pose_noise.iterations = args.noise_iterations;
@@ -708,7 +715,7 @@ fn eval(
     eval_cmd::write_reports(out, &rows, &settings, &device)?;
     print!("{}", std::fs::read_to_string(out.join("table.md"))?);
     println!(
-        "wrote {0}/table.md, table.csv, table.json, speed_vs_error.png",
+        "wrote {0}/table.md, table.csv, table.json, trials.csv, speed_vs_error.png",
         out.display()
     );
     Ok(())
