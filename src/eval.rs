@@ -279,10 +279,13 @@ pub struct Trial {
     /// The view, radians.
     pub azimuth: f64,
     pub elevation: f64,
-    /// Angle (radians, 0 to pi/2) between the line of sight and the test instance's longest
-    /// bounding-box axis: near 0 the view is end-on, and the object's length lies along
-    /// the line of sight, where one view sees it least.
-    pub axis_angle: f64,
+    /// Angles (radians, 0 to pi/2) between the line of sight and the test instance's
+    /// longest and shortest bounding-box axes. Near 0 for the longest the view is end-on;
+    /// near pi/2 for the shortest it is edge-on: the line of sight lies in the plane of the
+    /// two longest axes, and rotations about the shortest move the object mostly along the
+    /// line of sight, where one view sees them least.
+    pub long_axis_angle: f64,
+    pub short_axis_angle: f64,
     pub known_pose: f64,
     pub pose_noise: f64,
     pub pose_noise_placed: f64,
@@ -299,12 +302,12 @@ pub fn line_of_sight_angle(pose: Pose, axis: DVec3) -> f64 {
     sight.dot(axis.normalize()).abs().min(1.0).acos()
 }
 
-/// The object-frame unit axis along which `mesh`'s bounding box is longest.
-pub fn longest_axis(mesh: &Mesh) -> DVec3 {
+/// The object-frame unit axes of `mesh`'s bounding box, longest extent first.
+pub fn extent_axes(mesh: &Mesh) -> [DVec3; 3] {
     let (lo, hi) = mesh.bounds();
-    let extent = DVec3::from_array(std::array::from_fn(|k| (hi[k] - lo[k]) as f64));
-    let k = (0..3).fold(0, |best, k| if extent[k] > extent[best] { k } else { best });
-    DVec3::from_array(std::array::from_fn(|j| if j == k { 1.0 } else { 0.0 }))
+    let mut order = [0, 1, 2];
+    order.sort_by(|&a, &b| (hi[b] - lo[b]).total_cmp(&(hi[a] - lo[a])));
+    order.map(|k| DVec3::from_array(std::array::from_fn(|j| if j == k { 1.0 } else { 0.0 })))
 }
 
 /// Rotation (radians) and translation (metres) from `truth` to `estimate`.
@@ -388,7 +391,7 @@ pub fn evaluate_instance(
     let (mut known, mut known_ch, mut noisy, mut noisy_ch) = (vec![], vec![], vec![], vec![]);
     let mut placed = Vec::new();
     let mut trials = Vec::new();
-    let axis = longest_axis(test);
+    let axes = extent_axes(test);
     let mut from_truth = Vec::new();
     let (mut iterations, mut ms, mut noise_iterations, mut noise_ms) =
         (vec![], vec![], vec![], vec![]);
@@ -462,7 +465,8 @@ pub fn evaluate_instance(
         trials.push(Trial {
             azimuth,
             elevation,
-            axis_angle: line_of_sight_angle(pose, axis),
+            long_axis_angle: line_of_sight_angle(pose, axes[0]),
+            short_axis_angle: line_of_sight_angle(pose, axes[2]),
             known_pose: known[trial],
             pose_noise: noisy[trial],
             pose_noise_placed: placed[trial],
@@ -606,8 +610,8 @@ mod tests {
         let side = line_of_sight_angle(view_pose(0.0, 0.0, 0.7), -DVec3::X);
         assert!((side - deg(90.0)).abs() < 1e-9);
 
-        let long = Mesh::bottle(8);
-        assert_eq!(longest_axis(&long), DVec3::Y);
+        let drill = crate::dataset::instance("drill", &mut Rng::new(3)).unwrap();
+        assert_eq!(extent_axes(&drill), [DVec3::X, DVec3::Y, DVec3::Z]);
 
         let truth = view_pose(deg(40.0), deg(30.0), 0.7);
         assert!(pose_error(truth, truth).0 < 1e-7 && pose_error(truth, truth).1 == 0.0);

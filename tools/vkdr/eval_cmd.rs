@@ -256,18 +256,20 @@ fn category_table(rows: &[Row]) -> String {
     md
 }
 
-/// Views within this angle of a test instance's longest axis count as end-on.
-const END_ON: f64 = 30.0;
+/// Views whose line of sight lies within this angle of the plane of a test instance's two
+/// longest axes count as edge-on.
+const EDGE_ON: f64 = 30.0;
 
-/// Pose-noise errors split by view: end-on views (the object's length along the line of
-/// sight) against the rest.
+/// Pose-noise errors split by view: edge-on views (rotations about the object's shortest
+/// axis move it mostly along the line of sight) against the rest.
 fn view_table(rows: &[Row]) -> String {
     let mut categories: Vec<&str> = rows.iter().map(|r| r.category.as_str()).collect();
     categories.dedup();
     let mut md = format!(
-        "\nPose noise by view (end-on: the line of sight within {END_ON:.0} deg of the test instance's longest axis; \
+        "\nPose noise by view (edge-on: the line of sight within {EDGE_ON:.0} deg of the plane of the test instance's two longest \
+         bounding-box axes, where rotations about its shortest axis are seen only foreshortened; \
          ratio = mean over the trials of error / the instance's oracle error; rotation: mean final rotation error):\n\n\
-         | category | end-on trials | ratio | rotation (deg) | other trials | ratio | rotation (deg) |\n|---|---|---|---|---|---|---|\n"
+         | category | edge-on trials | ratio | rotation (deg) | other trials | ratio | rotation (deg) |\n|---|---|---|---|---|---|---|\n"
     );
     for category in categories {
         let trials: Vec<(&Row, &Trial)> = rows
@@ -275,10 +277,10 @@ fn view_table(rows: &[Row]) -> String {
             .filter(|r| r.category == category)
             .flat_map(|r| r.trials.iter().map(move |t| (r, t)))
             .collect();
-        let summary = |end_on: bool| {
+        let summary = |edge_on: bool| {
             let of: Vec<_> = trials
                 .iter()
-                .filter(|(_, t)| (t.axis_angle.to_degrees() < END_ON) == end_on)
+                .filter(|(_, t)| (t.short_axis_angle.to_degrees() > 90.0 - EDGE_ON) == edge_on)
                 .collect();
             if of.is_empty() {
                 return "0 | - | -".to_string();
@@ -304,17 +306,18 @@ fn view_table(rows: &[Row]) -> String {
 /// One line per trial: the view, the errors, and the pose error with pose noise.
 fn trials_csv(rows: &[Row]) -> String {
     let mut csv = String::from(
-        "category,instance,trial,azimuth_deg,elevation_deg,axis_angle_deg,known_pose,pose_noise,pose_noise_placed,rotation_error_deg,translation_error\n",
+        "category,instance,trial,azimuth_deg,elevation_deg,long_axis_angle_deg,short_axis_angle_deg,known_pose,pose_noise,pose_noise_placed,rotation_error_deg,translation_error\n",
     );
     for r in rows {
         for (i, t) in r.trials.iter().enumerate() {
             csv.push_str(&format!(
-                "{},{},{i},{:.2},{:.2},{:.2},{:e},{:e},{:e},{:.3},{:e}\n",
+                "{},{},{i},{:.2},{:.2},{:.2},{:.2},{:e},{:e},{:e},{:.3},{:e}\n",
                 r.category,
                 r.instance,
                 t.azimuth.to_degrees(),
                 t.elevation.to_degrees(),
-                t.axis_angle.to_degrees(),
+                t.long_axis_angle.to_degrees(),
+                t.short_axis_angle.to_degrees(),
                 t.known_pose,
                 t.pose_noise,
                 t.pose_noise_placed,
