@@ -632,19 +632,9 @@ mod tests {
     /// The error curve measures every code, once for a run of equal codes.
     #[test]
     fn error_curve_follows_the_codes() {
-        let canonical = Mesh::bottle(8);
-        let d = 3 * canonical.vertex_count();
-        let mut rng = Rng::new(5);
-        let mut field = |scale: f64| (0..d).map(|_| rng.range(-scale, scale)).collect();
-        let fits: Vec<crate::shape::TrainingFit> = (0..4)
-            .map(|_| crate::shape::TrainingFit {
-                w: field(1.0),
-                displacement: field(0.01),
-            })
-            .collect();
-        let names = (0..4).map(|i| i.to_string()).collect();
-        let space = ShapeSpace::from_fits("x", &canonical, 0.1, &fits, 2, names).unwrap();
-        let truth = surface_sample(&canonical, 300, 1);
+        let space = crate::shape::random_space(&mut Rng::new(5), 4, 2);
+        let canonical = &space.canonical;
+        let truth = surface_sample(canonical, 300, 1);
         let (a, b) = (vec![0.0, 0.0], space.training_codes[1].clone());
         let codes = vec![a.clone(), a.clone(), b.clone(), b.clone(), a.clone()];
         let curve = error_curve(&space, &truth, &codes).unwrap();

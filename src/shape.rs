@@ -476,27 +476,35 @@ fn json_string(json: &str, key: &str) -> Option<String> {
     Some(rest[..rest.find('"')?].to_string())
 }
 
+/// A shape space of `dims` dimensions over an 8-segment bottle from `instances` random
+/// training fits (coefficients in +-1, displacements in +-1 cm), for tests.
+#[cfg(test)]
+pub(crate) fn random_space(
+    rng: &mut crate::dataset::Rng,
+    instances: usize,
+    dims: usize,
+) -> ShapeSpace {
+    let canonical = Mesh::bottle(8);
+    let d = 3 * canonical.vertex_count();
+    let fits: Vec<TrainingFit> = (0..instances)
+        .map(|_| TrainingFit {
+            w: (0..d).map(|_| rng.range(-1.0, 1.0)).collect(),
+            displacement: (0..d).map(|_| rng.range(-0.01, 0.01)).collect(),
+        })
+        .collect();
+    let names = (0..instances).map(|i| i.to_string()).collect();
+    ShapeSpace::from_fits("test", &canonical, 0.1, &fits, dims, names).unwrap()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::dataset::Rng;
 
-    fn random_space(rng: &mut Rng) -> ShapeSpace {
-        let canonical = Mesh::bottle(8);
-        let d = 3 * canonical.vertex_count();
-        let fits: Vec<TrainingFit> = (0..5)
-            .map(|_| TrainingFit {
-                w: (0..d).map(|_| rng.range(-1.0, 1.0)).collect(),
-                displacement: (0..d).map(|_| rng.range(-0.01, 0.01)).collect(),
-            })
-            .collect();
-        ShapeSpace::from_fits("test", &canonical, 0.1, &fits, 3, vec![]).unwrap()
-    }
-
     #[test]
     fn displacement_codes_are_least_squares_fits() {
         let mut rng = Rng::new(1);
-        let space = random_space(&mut rng);
+        let space = random_space(&mut rng, 5, 3);
         let m = space.canonical.vertex_count();
         let residual = |code: &[f64], d: &[f64]| -> f64 {
             let v = space.vertices(code).unwrap();

@@ -789,8 +789,8 @@ mod tests {
     use super::*;
     use crate::dataset::Rng;
     use crate::raster::ViewBuffers;
-    use crate::shape::TrainingFit;
-    use crate::{Camera, Mesh};
+    use crate::shape::random_space;
+    use crate::Camera;
 
     /// `glsl/bfgs.comp` in float64: the state of one quasi-Newton run over x (code, then
     /// translation and rotation offsets), fed the loss and gradient at each new point.
@@ -1092,18 +1092,8 @@ mod tests {
     /// long as the RMS training deformation; SGD's are the training standard deviations.
     #[test]
     fn optimizer_coordinates_whiten_the_basis() {
-        let canonical = Mesh::bottle(8);
-        let d = 3 * canonical.vertex_count();
-        let mut rng = Rng::new(2);
-        let mut field = |scale: f64| (0..d).map(|_| rng.range(-scale, scale)).collect();
-        let fits: Vec<TrainingFit> = (0..6)
-            .map(|_| TrainingFit {
-                w: field(1.0),
-                displacement: field(0.01),
-            })
-            .collect();
-        let names = (0..6).map(|i| i.to_string()).collect();
-        let space = ShapeSpace::from_fits("x", &canonical, 0.1, &fits, 4, names).unwrap();
+        let space = random_space(&mut Rng::new(2), 6, 4);
+        let d = 3 * space.canonical.vertex_count();
         let k = space.dims();
         let basis = &space.deformation_basis;
         let deformation = |s: &[f64]| -> Vec<f64> {
