@@ -388,9 +388,8 @@ pub fn evaluate_instance(
     let oracle_vertices = space.vertices(&oracle_code)?;
     let error = |vertices: &[DVec3]| surface_error(&truth, vertices, space.canonical.triangles());
     let mut rng = Rng::new(settings.seed ^ hash(name));
-    let (mut known, mut known_ch, mut noisy, mut noisy_ch) = (vec![], vec![], vec![], vec![]);
-    let mut placed = Vec::new();
-    let mut trials = Vec::new();
+    let (mut known_ch, mut noisy_ch) = (vec![], vec![]);
+    let mut trials: Vec<Trial> = Vec::new();
     let axes = extent_axes(test);
     let mut from_truth = Vec::new();
     let (mut iterations, mut ms, mut noise_iterations, mut noise_ms) =
@@ -426,7 +425,7 @@ pub fn evaluate_instance(
         };
 
         let result = registrar.register(ctx, job(view), &known_pose, |_, _| {})?;
-        known.push(error(&result.vertices));
+        let known_error = error(&result.vertices);
         known_ch.push(chamfer(&test_vertices, &result.vertices));
         iterations.push(result.iterations as f64);
         ms.push(result.milliseconds);
@@ -459,17 +458,15 @@ pub fn evaluate_instance(
             pose: start,
         };
         let result = registrar.register(ctx, job(view), &pose_noise, |_, _| {})?;
-        noisy.push(error(&result.vertices));
-        placed.push(error(&placed_like(&result.vertices, &oracle_vertices)));
         let (rotation_error, translation_error) = pose_error(result.pose, pose);
         trials.push(Trial {
             azimuth,
             elevation,
             long_axis_angle: line_of_sight_angle(pose, axes[0]),
             short_axis_angle: line_of_sight_angle(pose, axes[2]),
-            known_pose: known[trial],
-            pose_noise: noisy[trial],
-            pose_noise_placed: placed[trial],
+            known_pose: known_error,
+            pose_noise: error(&result.vertices),
+            pose_noise_placed: error(&placed_like(&result.vertices, &oracle_vertices)),
             rotation_error,
             translation_error,
         });
@@ -485,16 +482,17 @@ pub fn evaluate_instance(
         )?;
     }
     progress(settings.trials, settings.trials);
+    let stat = |of: fn(&Trial) -> f64| Stat::of(&trials.iter().map(of).collect::<Vec<_>>());
     Ok(Row {
         category: category.into(),
         instance: name.into(),
         oracle: error(&oracle_vertices),
         oracle_chamfer: chamfer(&test_vertices, &oracle_vertices),
-        known_pose: Stat::of(&known),
+        known_pose: stat(|t| t.known_pose),
         known_pose_chamfer: Stat::of(&known_ch),
-        pose_noise_worst: noisy.iter().copied().fold(0.0, f64::max),
-        pose_noise_placed: Stat::of(&placed),
-        pose_noise: Stat::of(&noisy),
+        pose_noise_worst: trials.iter().map(|t| t.pose_noise).fold(0.0, f64::max),
+        pose_noise_placed: stat(|t| t.pose_noise_placed),
+        pose_noise: stat(|t| t.pose_noise),
         pose_noise_chamfer: Stat::of(&noisy_ch),
         from_truth: settings.from_truth.then(|| Stat::of(&from_truth)),
         iterations: Stat::of(&iterations).mean,

@@ -226,14 +226,19 @@ pub fn eval(
 }
 
 /// Each category's means over its test instances, and the ratios of those means.
-fn category_table(rows: &[Row]) -> String {
+/// The rows' categories in order (rows come grouped by category).
+fn categories(rows: &[Row]) -> Vec<&str> {
     let mut categories: Vec<&str> = rows.iter().map(|r| r.category.as_str()).collect();
     categories.dedup();
+    categories
+}
+
+fn category_table(rows: &[Row]) -> String {
     let mut md = String::from(
         "\nPer category (means over its test instances; ratio = mean error / mean oracle error):\n\n\
          | category | oracle | known pose | ratio | pose noise | ratio | worst noise trial | noise, placed (ratio) |\n|---|---|---|---|---|---|---|---|\n",
     );
-    for category in categories {
+    for category in categories(rows) {
         let of: Vec<&Row> = rows.iter().filter(|r| r.category == category).collect();
         let mean = |f: &dyn Fn(&Row) -> f64| of.iter().map(|r| f(r)).sum::<f64>() / of.len() as f64;
         let oracle = mean(&|r| r.oracle);
@@ -263,15 +268,13 @@ const EDGE_ON: f64 = 30.0;
 /// Pose-noise errors split by view: edge-on views (rotations about the object's shortest
 /// axis move it mostly along the line of sight) against the rest.
 fn view_table(rows: &[Row]) -> String {
-    let mut categories: Vec<&str> = rows.iter().map(|r| r.category.as_str()).collect();
-    categories.dedup();
     let mut md = format!(
         "\nPose noise by view (edge-on: the line of sight within {EDGE_ON:.0} deg of the plane of the test instance's two longest \
          bounding-box axes, where rotations about its shortest axis are seen only foreshortened; \
          ratio = mean over the trials of error / the instance's oracle error; rotation: mean final rotation error):\n\n\
          | category | edge-on trials | ratio | rotation (deg) | other trials | ratio | rotation (deg) |\n|---|---|---|---|---|---|---|\n"
     );
-    for category in categories {
+    for category in categories(rows) {
         let trials: Vec<(&Row, &Trial)> = rows
             .iter()
             .filter(|r| r.category == category)
