@@ -771,16 +771,19 @@ fn demo(out: &Path) -> Result<()> {
         ..Default::default()
     };
     let registrar = vkdr::register::Registrar::new(&ctx)?;
-    let row = vkdr::eval::evaluate_instance(
-        &ctx,
-        &registrar,
-        &space,
-        "bottle",
-        "test_00",
-        &test,
-        &settings,
-        |_, _| {},
-    )?;
+    let evaluate = |settings: &vkdr::eval::EvalSettings| {
+        vkdr::eval::evaluate_instance(
+            &ctx,
+            &registrar,
+            &space,
+            "bottle",
+            "test_00",
+            &test,
+            settings,
+            |_, _| {},
+        )
+    };
+    let row = evaluate(&settings)?;
     println!(
         "3. {}: oracle {:.2} mm | known pose {:.2} +- {:.2} mm ({:.2}x oracle) | pose noise {:.2} +- {:.2} mm ({:.2}x) | {:.0} iterations, {:.0} ms ({:.1} ms per iteration)",
         test_path.display(),
@@ -799,16 +802,7 @@ fn demo(out: &Path) -> Result<()> {
         shading: Some(vkdr::diff::Shading::default()),
         ..settings.clone()
     };
-    let shaded = vkdr::eval::evaluate_instance(
-        &ctx,
-        &registrar,
-        &space,
-        "bottle",
-        "test_00",
-        &test,
-        &shaded_settings,
-        |_, _| {},
-    )?;
+    let shaded = evaluate(&shaded_settings)?;
     println!(
         "   with the shading observed too (a light at the camera): known pose {:.2} mm ({:.2}x) | pose noise {:.2} +- {:.2} mm ({:.2}x) | {:.0} ms",
         1e3 * shaded.known_pose.mean,
