@@ -26,6 +26,7 @@ void add_clip_gradient(ViewData vd, uint view, uint v, vec3 g_clip) {
 }
 
 void crossing_backward(ViewData vd, uint view, Pair pair) {
+    if (pair.clamped) return;
     ivec2 affected = pair.affects_g ? pair.g : pair.f;
     vec4 ga = loss_gradient(pixel_index(affected, view), view);
     vec4 cf = colour_at(vd, view, pair.f, id_at(pair.f, view));

@@ -12,7 +12,6 @@
 #include "edges.glsl"
 
 const uint NO_NEIGHBOUR = 0xffffffffu;
-const int MAX_WALK = 8;  // triangles crossed between two pixel centres, at most
 const float BACKGROUND_DEPTH = 3.0e38;
 
 struct Triangle {
@@ -57,13 +56,39 @@ float depth_on(Triangle tri, vec2 p) {
     return dot(b, vec3(tri.cam[0].z, tri.cam[1].z, tri.cam[2].z));
 }
 
-// Where the segment from pixel centre pf (covered by triangle t, the front surface) to
-// pixel centre pb leaves the surface through a silhouette edge: walk across neighbours
-// that face the same way until an edge with no neighbour, or one whose neighbour faces
-// away, is crossed. alpha is the crossing's position along the segment (0 at pf); ef and
-// eb are that edge's function at pf and pb (alpha = ef / (ef - eb)).
+// The silhouette search: where the segment from pixel centre pf (covered by triangle t,
+// the front surface) to pixel centre pb leaves the surface through a silhouette edge.
+//
+// Design. The search walks along the segment across the triangles of the front surface,
+// edge by edge, until it leaves through a silhouette edge: one with no neighbour, or
+// whose neighbour faces the other way. Three properties make it exact at any mesh
+// density:
+//  * No step limit short of MAX_WALK, a guard against broken meshes far above any real
+//    count (a smooth rim seen edge-on has about sqrt(triangles per pixel) triangles
+//    between two pixel centres; a 5e6-triangle sphere about a hundred). A walk that
+//    reaches the guard is counted in work_count[LOST_WALKS] and the host refuses the
+//    result (`Error::Limit`): a crossing is never dropped silently.
+//  * Occlusion comes with it: the walk starts on the surface seen at the front pixel and
+//    only ever crosses that surface, so an edge hidden behind nearer geometry is never
+//    reached, and whichever triangle owns the edge, the walk arrives at it.
+//  * Topological consistency: a shared edge's function is evaluated from its two vertices
+//    in index order (walk_edge_function), so both triangles see the same bits and the
+//    walk cannot leave one triangle through an edge that its neighbour says was not
+//    crossed, however thin the triangles are.
+// Rasterizing the silhouette edges instead (redner's edge sampling, Li et al. 2018) finds
+// crossings without walking, but needs a visibility test per crossing that one G-buffer
+// cannot answer between pixel centres; nvdiffrast only looks at the two triangles at the
+// pixel centres and misses the edge when more lie between (the failure this replaces).
+//
+// alpha is the crossing's position along the segment (0 at pf); ef and eb are that
+// edge's function (edge_function(c_i, c_j) of its corners in triangle order) at pf and pb,
+// alpha = ef / (ef - eb).
+const int MAX_WALK = 65536;
+const uint LOST_WALKS = 4u;  // work_count slot counting walks that reached MAX_WALK
+
 struct Crossing {
     bool found;
+    bool lost;  // the walk reached MAX_WALK
     uint triangle;
     int edge;  // opposite corner `edge`: corners (edge + 1) % 3 and (edge + 2) % 3
     float alpha;
@@ -71,41 +96,68 @@ struct Crossing {
     float eb;
 };
 
+// The function of the edge opposite corner k at p, in the triangle's corner order, computed
+// from the edge's vertices in index order so that both triangles sharing it agree exactly.
+float walk_edge_function(Triangle tri, int k, vec2 p) {
+    int i = (k + 1) % 3;
+    int j = (k + 2) % 3;
+    if (tri.v[i] < tri.v[j]) return edge_function(tri.clip[i], tri.clip[j], p);
+    return -edge_function(tri.clip[j], tri.clip[i], p);
+}
+
 Crossing find_crossing(ViewData vd, uint t, vec2 pf, vec2 pb) {
     Crossing none;
     none.found = false;
+    none.lost = false;
     uint current = t;
     uint previous = NO_NEIGHBOUR;
+    // Where the walk entered the current triangle. The pixel centre need not lie inside the
+    // first triangle (the rasterizer snaps vertices to its sub-pixel grid, and a triangle
+    // thinner than that grid can own a pixel whose centre it misses): an edge is left
+    // where the segment's line goes from its inner to its outer side, at any parameter
+    // past the entry, even below 0 (alpha is clamped to 0 there; see make_pair).
+    float entry = -3.0e38;
     for (int step = 0; step < MAX_WALK; ++step) {
         Triangle tri = load_triangle(vd, current);
-        vec3 ef = edge_functions(tri.clip[0], tri.clip[1], tri.clip[2], pf);
-        vec3 eb = edge_functions(tri.clip[0], tri.clip[1], tri.clip[2], pb);
-        float inside = sign(ef.x + ef.y + ef.z);  // sum = det of the clip corners
+        // The triangle's orientation on screen; det(clip corners) = sx sy det(camera corners).
+        float inside = facing(tri);
         int exit_edge = -1;
         float exit_alpha = 2.0;
+        float exit_ef = 0.0;
+        float exit_eb = 0.0;
         for (int k = 0; k < 3; ++k) {
             if (previous != NO_NEIGHBOUR && neighbours[3u * current + uint(k)] == previous) continue;
-            if (ef[k] * inside > 0.0 && eb[k] * inside < 0.0) {
-                float a = ef[k] / (ef[k] - eb[k]);
-                if (a < exit_alpha) { exit_alpha = a; exit_edge = k; }
+            float ef = walk_edge_function(tri, k, pf);
+            float eb = walk_edge_function(tri, k, pb);
+            if ((ef - eb) * inside > 0.0 && eb * inside < 0.0) {
+                float a = ef / (ef - eb);
+                if (a >= entry && a < exit_alpha) {
+                    exit_alpha = a;
+                    exit_edge = k;
+                    exit_ef = ef;
+                    exit_eb = eb;
+                }
             }
         }
         if (exit_edge < 0) return none;
         uint next = neighbours[3u * current + uint(exit_edge)];
-        bool silhouette = next == NO_NEIGHBOUR || facing(load_triangle(vd, next)) != facing(tri);
+        bool silhouette = next == NO_NEIGHBOUR || facing(load_triangle(vd, next)) != inside;
         if (silhouette) {
             Crossing c;
             c.found = true;
+            c.lost = false;
             c.triangle = current;
             c.edge = exit_edge;
             c.alpha = exit_alpha;
-            c.ef = ef[exit_edge];
-            c.eb = eb[exit_edge];
+            c.ef = exit_ef;
+            c.eb = exit_eb;
             return c;
         }
         previous = current;
         current = next;
+        entry = exit_alpha;
     }
+    none.lost = true;
     return none;
 }
 
@@ -123,6 +175,8 @@ bool handled_along_x(Triangle tri, int edge, ViewData vd) {
 // the edge crosses, and which pixel's antialiased value changes (by w (c[o] - c[a])).
 struct Pair {
     bool valid;
+    bool lost;            // the silhouette search gave up (see find_crossing)
+    bool clamped;         // the crossing lies behind f's centre: alpha held at 0
     ivec2 f;
     ivec2 g;
     uint front_triangle;  // triangle at f
@@ -135,6 +189,8 @@ struct Pair {
 Pair make_pair(ViewData vd, uint view, ivec2 p, ivec2 q, bool along_x) {
     Pair pair;
     pair.valid = false;
+    pair.lost = false;
+    pair.clamped = false;
     uint id_p = id_at(p, view);
     uint id_q = id_at(q, view);
     if (id_p == id_q) return pair;
@@ -151,12 +207,16 @@ Pair make_pair(ViewData vd, uint view, ivec2 p, ivec2 q, bool along_x) {
     vec2 pf = p_front ? np : nq;
     vec2 pb = p_front ? nq : np;
     Crossing c = find_crossing(vd, pair.front_triangle, pf, pb);
+    pair.lost = c.lost;
     if (!c.found) return pair;
     Triangle edge_tri = load_triangle(vd, c.triangle);
     if (handled_along_x(edge_tri, c.edge, vd) != along_x) return pair;
     pair.valid = true;
     pair.crossing = c;
+    // A crossing behind the front pixel's centre (see find_crossing) counts as at it, and
+    // moves nothing there.
+    pair.clamped = c.alpha < 0.0;
     pair.affects_g = c.alpha > 0.5;
-    pair.weight = abs(c.alpha - 0.5);
+    pair.weight = abs(max(c.alpha, 0.0) - 0.5);
     return pair;
 }

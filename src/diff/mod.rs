@@ -32,6 +32,12 @@ const FINALIZE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/loss_finalize.
 const POSE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/pose_gradient.comp.spv"));
 const LAMBERT: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/lambert.comp.spv"));
 
+/// The work-count buffer: listed pixels, 3 dispatch arguments, then (at [`LOST_WALKS`])
+/// the silhouette searches that gave up since [`Scene::record_prepare`].
+const WORK_COUNT_WORDS: u64 = 8;
+/// As `LOST_WALKS` in `glsl/include/diff.glsl`.
+const LOST_WALKS: usize = 4;
+
 /// Marks an edge without exactly one neighbouring triangle.
 pub const NO_NEIGHBOUR: u32 = u32::MAX;
 
@@ -377,6 +383,25 @@ impl Scene {
                 "observed images contain NaN or Inf".into(),
             ));
         }
+        // Per-pixel and per-vertex buffers are bound whole: refuse before allocating what
+        // the device could not address.
+        let range = ctx.info().max_storage_buffer_range as u64;
+        let largest = [
+            ("the compared image", pixels * image_channels * 4),
+            ("the camera-space vertex gradients", n as u64 * vertices * 12),
+            ("the attribute gradients", n as u64 * vertices * channels as u64 * 4),
+        ];
+        for (what, bytes) in largest {
+            if bytes > range {
+                return Err(Error::Limit(format!(
+                    "{what} of {n} view(s) of {w} x {h} need {bytes} bytes ({:.1} MiB) in one \
+                     buffer, more than the device's maxStorageBufferRange of {range} bytes \
+                     ({:.1} MiB); use a smaller image or fewer views",
+                    bytes as f64 / 1048576.0,
+                    range as f64 / 1048576.0
+                )));
+            }
+        }
         let device = |name, bytes| Buffer::new(ctx, name, bytes, BufferKind::Device);
         let with_distance = desc.loss == Loss::Distance;
         // One partial loss sum per subgroup of every 8 x 8 workgroup.
@@ -403,7 +428,7 @@ impl Scene {
             partials: device("loss partial sums", n as u64 * partial_slots as u64 * 12)?,
             partial_slots,
             work: device("work list", pixels * 4)?,
-            work_count: device("work count", 16)?,
+            work_count: device("work count", WORK_COUNT_WORDS * 4)?,
             grad_camera: device("camera gradients", n as u64 * vertices * 12)?,
             grad_attributes: device(
                 "attribute gradients",
@@ -436,6 +461,7 @@ impl Scene {
 
     /// Records what depends only on the observation (the distance field); run once.
     pub fn record_prepare(&self, renderer: &DiffRenderer, rec: &mut Recorder) -> Result<()> {
+        rec.fill_buffer(&self.work_count, 0);
         if let Some([a, b]) = &self.distance_scratch {
             let shape = (self.views.width(), self.views.height(), self.views.count());
             renderer
@@ -459,9 +485,10 @@ impl Scene {
             rec.reset_timestamps(t);
             rec.timestamp(t, 0);
         }
+        // The listed pixels and dispatch arguments; the lost-walk count runs on.
+        rec.fill_buffer_range(&self.work_count, 0, 16, 0);
         for buffer in [
             &self.stats,
-            &self.work_count,
             &self.grad_camera,
             &self.grad_attributes,
             &self.grad_object,
@@ -613,8 +640,26 @@ impl Scene {
         &self.grad_pose
     }
 
-    /// Reads every result back (after the submission completed).
+    /// Fails with [`Error::Limit`] if a silhouette search gave up (a mesh whose walk
+    /// between two pixel centres crossed more triangles than `MAX_WALK` in
+    /// `glsl/include/diff.glsl`) in any evaluation since [`Scene::record_prepare`]: the
+    /// gradients would miss that crossing.
+    pub fn check_walks(&self) -> Result<()> {
+        let lost = self.work_count.read_range::<u32>(0, WORK_COUNT_WORDS as usize)?[LOST_WALKS];
+        if lost > 0 {
+            return Err(Error::Limit(format!(
+                "{lost} silhouette searches crossed more than 65536 triangles between two \
+                 pixel centres without reaching an edge; the mesh is likely broken \
+                 (non-manifold or self-intersecting), and its gradients would be wrong"
+            )));
+        }
+        Ok(())
+    }
+
+    /// Reads every result back (after the submission completed); fails as
+    /// [`Scene::check_walks`] does.
     pub fn read(&mut self) -> Result<Evaluation> {
+        self.check_walks()?;
         let n = self.views.count() as usize;
         let v = self.mesh.vertex_count() as usize;
         let pixels = n * self.views.width() as usize * self.views.height() as usize;

@@ -12,7 +12,9 @@ use super::{Shading, NO_NEIGHBOUR};
 use crate::camera::Camera;
 use crate::loss::{reference as loss_reference, Loss};
 
-const MAX_WALK: usize = 8;
+/// As `MAX_WALK` in `glsl/include/diff.glsl`: a guard against broken meshes, not a limit
+/// real crossings reach.
+const MAX_WALK: usize = 65536;
 
 /// Everything the model holds fixed.
 pub struct Problem<'a> {
@@ -164,31 +166,47 @@ impl ViewModel<'_> {
         c
     }
 
+    /// The function of the edge opposite corner k at p, from its vertices in index order
+    /// (as `walk_edge_function`).
+    fn walk_edge_function(tri: &Tri, k: usize, p: DVec2) -> f64 {
+        let (i, j) = ((k + 1) % 3, (k + 2) % 3);
+        if tri.v[i] < tri.v[j] {
+            edge_function(tri.clip[i], tri.clip[j], p)
+        } else {
+            -edge_function(tri.clip[j], tri.clip[i], p)
+        }
+    }
+
+    /// The walk of `find_crossing` in `glsl/include/diff.glsl`. Panics when it reaches
+    /// `MAX_WALK` (the device reports that as an error).
     fn find_crossing(&self, t: usize, pf: DVec2, pb: DVec2) -> Option<Crossing> {
         let mut current = t;
         let mut previous = None;
+        let mut entry = f64::NEG_INFINITY;
         for _ in 0..MAX_WALK {
             let tri = self.tri(current);
-            let ef = edge_functions(&tri.clip, pf);
-            let eb = edge_functions(&tri.clip, pb);
-            let inside = (ef[0] + ef[1] + ef[2]).signum();
+            let inside = Self::facing(&tri);
             let mut exit: Option<(usize, f64)> = None;
             for k in 0..3 {
                 let across = self.problem.neighbours[3 * current + k];
                 if previous.is_some_and(|p| across == p) {
                     continue;
                 }
-                if ef[k] * inside > 0.0 && eb[k] * inside < 0.0 {
-                    let a = ef[k] / (ef[k] - eb[k]);
-                    if exit.is_none_or(|(_, best)| a < best) {
+                let (ef, eb) = (
+                    Self::walk_edge_function(&tri, k, pf),
+                    Self::walk_edge_function(&tri, k, pb),
+                );
+                if (ef - eb) * inside > 0.0 && eb * inside < 0.0 {
+                    let a = ef / (ef - eb);
+                    if a >= entry && exit.is_none_or(|(_, best)| a < best) {
                         exit = Some((k, a));
                     }
                 }
             }
             let (edge, alpha) = exit?;
             let next = self.problem.neighbours[3 * current + edge];
-            let silhouette = next == NO_NEIGHBOUR
-                || Self::facing(&self.tri(next as usize)) != Self::facing(&tri);
+            let silhouette =
+                next == NO_NEIGHBOUR || Self::facing(&self.tri(next as usize)) != inside;
             if silhouette {
                 return Some(Crossing {
                     triangle: current,
@@ -198,8 +216,9 @@ impl ViewModel<'_> {
             }
             previous = Some(current as u32);
             current = next as usize;
+            entry = alpha;
         }
-        None
+        panic!("the silhouette search crossed {MAX_WALK} triangles without an end");
     }
 
     fn handled_along_x(&self, tri: &Tri, edge: usize) -> bool {
@@ -237,7 +256,7 @@ impl ViewModel<'_> {
             f,
             g,
             affects_g: crossing.alpha > 0.5,
-            weight: (crossing.alpha - 0.5).abs(),
+            weight: (crossing.alpha.max(0.0) - 0.5).abs(),
         })
     }
 

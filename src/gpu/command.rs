@@ -33,6 +33,9 @@ pub enum Groups<'a> {
 pub struct Recorder {
     ctx: Context,
     pub(crate) raw: vk::CommandBuffer,
+    /// The first command that exceeded a device limit; it was not recorded, and
+    /// [`Recorder::finish`] returns this error instead of a recording.
+    refused: Option<Error>,
 }
 
 /// A finished command buffer; [`Context::replay`] runs it again and again.
@@ -72,11 +75,15 @@ impl Recorder {
         Ok(Self {
             ctx: ctx.clone(),
             raw,
+            refused: None,
         })
     }
 
     /// Ends recording; the result can be submitted any number of times.
     pub fn finish(mut self) -> Result<Recording> {
+        if let Some(error) = self.refused.take() {
+            return Err(error);
+        }
         let raw = std::mem::replace(&mut self.raw, vk::CommandBuffer::null());
         let recording = Recording {
             ctx: self.ctx.clone(),
@@ -243,6 +250,24 @@ impl Recorder {
             pipeline.bindings.len(),
             "binding count must match the pipeline's layout"
         );
+        let max = self.ctx.info().max_storage_buffer_range as u64;
+        for binding in bindings {
+            if let Binding::Buffer { buffer, range, .. } = binding {
+                if *range > max {
+                    self.refused.get_or_insert(Error::Limit(format!(
+                        "buffer '{}' is bound with {range} bytes ({:.1} MiB), more than the \
+                         device's maxStorageBufferRange of {max} bytes ({:.1} MiB); use a \
+                         smaller image, fewer views or a smaller mesh",
+                        buffer.name(),
+                        *range as f64 / 1048576.0,
+                        max as f64 / 1048576.0
+                    )));
+                }
+            }
+        }
+        if self.refused.is_some() {
+            return;
+        }
         let buffer_infos: Vec<[vk::DescriptorBufferInfo; 1]> = bindings
             .iter()
             .map(|b| match b {
@@ -322,6 +347,9 @@ impl Recorder {
 
     /// Non-indexed draw of `vertex_count` vertices (vertex pulling).
     pub fn draw(&mut self, vertex_count: u32) {
+        if self.refused.is_some() {
+            return;
+        }
         // SAFETY: inside a rendering pass with a bound graphics pipeline.
         unsafe { self.device().cmd_draw(self.raw, vertex_count, 1, 0, 0) };
     }
@@ -346,6 +374,9 @@ impl Recorder {
     /// Dispatches with workgroup counts (3 x u32) that an earlier pass wrote into `args`
     /// at byte `offset` (a multiple of 4).
     pub fn dispatch_indirect(&mut self, args: &Buffer, offset: u64) {
+        if self.refused.is_some() {
+            return;
+        }
         // SAFETY: a compute pipeline is bound; `args` has indirect usage (device buffers).
         unsafe {
             self.device()
@@ -353,8 +384,22 @@ impl Recorder {
         };
     }
 
+    /// Dispatches `x` x `y` x `z` workgroups; a count above the device's
+    /// `maxComputeWorkGroupCount` is not recorded and fails [`Recorder::finish`].
     pub fn dispatch(&mut self, x: u32, y: u32, z: u32) {
-        // SAFETY: a compute pipeline is bound.
+        if self.refused.is_some() {
+            return;
+        }
+        let max = self.ctx.info().max_compute_workgroup_count;
+        if x > max[0] || y > max[1] || z > max[2] {
+            self.refused.get_or_insert(Error::Limit(format!(
+                "a dispatch of {x} x {y} x {z} workgroups exceeds the device's \
+                 maxComputeWorkGroupCount of {} x {} x {}",
+                max[0], max[1], max[2]
+            )));
+            return;
+        }
+        // SAFETY: a compute pipeline is bound; the counts are within the device's limits.
         unsafe { self.device().cmd_dispatch(self.raw, x, y, z) };
     }
 
@@ -392,6 +437,18 @@ impl Recorder {
         unsafe {
             self.device()
                 .cmd_copy_buffer(self.raw, src.raw, dst.raw, &region)
+        };
+    }
+
+    /// Fills `size` bytes of a buffer from `offset` (both multiples of 4) with a repeated
+    /// 32-bit word.
+    pub fn fill_buffer_range(&mut self, buffer: &Buffer, offset: u64, size: u64, word: u32) {
+        debug_assert!(offset % 4 == 0 && size % 4 == 0 && offset + size <= buffer.size());
+        // SAFETY: recording state; the range lies inside the buffer (checked above in debug
+        // builds, by the callers' fixed layouts otherwise).
+        unsafe {
+            self.device()
+                .cmd_fill_buffer(self.raw, buffer.raw, offset, size, word)
         };
     }
 

@@ -56,6 +56,7 @@ pub struct DeviceInfo {
     pub max_storage_buffer_range: u32,
     pub min_storage_buffer_offset_alignment: u64,
     pub max_compute_workgroup_invocations: u32,
+    pub max_compute_workgroup_count: [u32; 3],
     pub max_push_constants_size: u32,
     pub subgroup_size: u32,
     pub timestamp_period_ns: f32,
@@ -298,8 +299,10 @@ impl Context {
                 device.destroy_fence(fence, None);
             }
             // On timeout the fence is leaked on purpose: the device may still signal it.
-            waited
+            waited?;
         }
+        // A submission that the validation layer objected to has no trustworthy result.
+        self.check_validation()
     }
 }
 
@@ -544,6 +547,7 @@ fn describe(instance: &ash::Instance, pd: vk::PhysicalDevice, index: usize) -> D
             max_storage_buffer_range: limits.max_storage_buffer_range,
             min_storage_buffer_offset_alignment: limits.min_storage_buffer_offset_alignment,
             max_compute_workgroup_invocations: limits.max_compute_work_group_invocations,
+            max_compute_workgroup_count: limits.max_compute_work_group_count,
             max_push_constants_size: limits.max_push_constants_size,
             subgroup_size: subgroup.subgroup_size,
             timestamp_period_ns: limits.timestamp_period,

@@ -638,6 +638,7 @@ impl<'a> Task<'a> {
     /// Reads the losses so far, stops the task on a plateau or at the last iteration, and
     /// returns the latest loss.
     fn check_plateau(&mut self, params: &RegisterParams) -> Result<f64> {
+        self.scene.check_walks()?;
         let losses = self
             .state
             .read_range::<f32>(State::losses(self.k) as u64 * 4, self.done)?;

@@ -16,7 +16,8 @@ use vkdr::raster::{MeshBuffers, ShadedTarget, View};
 use vkdr::{Camera, Mesh, Pose};
 
 pub struct BenchArgs {
-    pub size: u32,
+    /// Width and height.
+    pub size: (u32, u32),
     pub repeats: usize,
     pub max_vertices: usize,
     pub loss: Loss,
@@ -31,6 +32,49 @@ pub struct Row {
     pub plain_ms: f64,
     pub wall_ms: f64,
     pub plain_wall_ms: f64,
+    /// |dL/dtz - central difference| / |central difference|, tz +- 2 mm, re-rendered.
+    pub dtz_error: f64,
+    /// The same for the vertex gradients along a stretch of the mesh along its x axis
+    /// (x (1 +- 0.003)): sum over vertices of dL/dx_v * x_v against re-rendered losses.
+    pub stretch_error: f64,
+}
+
+/// The mesh stretched along its own x axis by 1 + `e`.
+fn stretched(mesh: &Mesh, e: f32) -> Result<Mesh> {
+    let positions = mesh
+        .positions()
+        .iter()
+        .map(|&[x, y, z]| [x * (1.0 + e), y, z])
+        .collect();
+    Ok(Mesh::new(positions, mesh.triangles().to_vec())?)
+}
+
+/// The loss of `mesh` seen in `view` against `mask` (a fresh scene: visibility and
+/// silhouettes re-rendered).
+fn loss_of(
+    ctx: &Context,
+    renderer: &DiffRenderer,
+    mesh: &Mesh,
+    view: View,
+    mask: &[f32],
+    loss: Loss,
+) -> Result<f64> {
+    let mut scene = Scene::new(
+        ctx,
+        &SceneDesc {
+            mesh,
+            views: &[view],
+            loss,
+            observed: mask,
+            attributes: None,
+            shading: None,
+        },
+    )?;
+    Ok(scene.evaluate(ctx, renderer)?.loss[0] as f64)
+}
+
+fn relative_error(got: f64, want: f64) -> f64 {
+    (got - want).abs() / want.abs().max(f64::MIN_POSITIVE)
 }
 
 /// A sphere with about `vertices` vertices.
@@ -55,18 +99,18 @@ pub fn median(mut values: Vec<f64>) -> f64 {
 
 pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
     let renderer = DiffRenderer::new(ctx)?;
-    let size = args.size;
-    let camera = Camera::centered(2.0 * size as f64, size, size)?;
+    let (width, height) = args.size;
+    let camera = Camera::centered(2.0 * width.max(height) as f64, width, height)?;
     let view = View {
         camera,
         pose: Pose::new([0.005, -0.004, 0.6], [0.3, 0.2, 0.0])?,
     };
     // The observed mask: a disc a little off the sphere's silhouette.
-    let s = size as f64;
-    let mask: Vec<f32> = (0..size)
-        .flat_map(|y| (0..size).map(move |x| (x as f64 + 0.5, y as f64 + 0.5)))
+    let (w, h, s) = (width as f64, height as f64, width.max(height) as f64);
+    let mask: Vec<f32> = (0..height)
+        .flat_map(|y| (0..width).map(move |x| (x as f64 + 0.5, y as f64 + 0.5)))
         .map(|(x, y)| {
-            if (x - 0.53 * s).hypot(y - 0.48 * s) < 0.38 * s {
+            if (x - 0.53 * w).hypot(y - 0.48 * h) < 0.38 * s {
                 1.0
             } else {
                 0.0
@@ -81,7 +125,7 @@ pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
     for (k, &target) in counts.iter().enumerate() {
         let mesh = sphere(target);
         eprintln!(
-            "[{}/{}] {} vertices, {} faces at {size}x{size}, {} repeats",
+            "[{}/{}] {} vertices, {} faces at {width}x{height}, {} repeats",
             k + 1,
             counts.len(),
             mesh.vertex_count(),
@@ -108,7 +152,7 @@ pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
         let iteration = rec.finish()?;
 
         let buffers = MeshBuffers::new(ctx, &mesh)?;
-        let shaded = ShadedTarget::new(ctx, size, size, 1)?;
+        let shaded = ShadedTarget::new(ctx, width, height, 1)?;
         let plain_stamps = Timestamps::new(ctx, 2)?;
         let mut rec = Recorder::new(ctx)?;
         rec.reset_timestamps(&plain_stamps);
@@ -139,7 +183,27 @@ pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
             plain_ms.push(p[1] - p[0]);
             plain_wall.push(plain_elapsed);
         }
-        let loss = scene.read()?.loss[0];
+        let result = scene.read()?;
+        let loss = result.loss[0];
+        // The gradients against central differences of re-rendered losses.
+        let h = 0.002;
+        let moved = |dz: f64| {
+            let mut v = view;
+            v.pose.translation.z += dz;
+            loss_of(ctx, &renderer, &mesh, v, &mask, args.loss)
+        };
+        let fd_tz = (moved(h)? - moved(-h)?) / (2.0 * h);
+        let dtz_error = relative_error(result.pose_gradient[0][2] as f64, fd_tz);
+        let e = 0.003;
+        let stretch = |e: f32| loss_of(ctx, &renderer, &stretched(&mesh, e)?, view, &mask, args.loss);
+        let fd_stretch = (stretch(e)? - stretch(-e)?) / (2.0 * e as f64);
+        let got_stretch: f64 = result
+            .vertex_gradient
+            .iter()
+            .zip(mesh.positions())
+            .map(|(g, p)| g[0] as f64 * p[0] as f64)
+            .sum();
+        let stretch_error = relative_error(got_stretch, fd_stretch);
         let row = Row {
             vertices: mesh.vertex_count(),
             faces: mesh.triangle_count(),
@@ -148,15 +212,20 @@ pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
             plain_ms: median(plain_ms),
             wall_ms: median(wall),
             plain_wall_ms: median(plain_wall),
+            dtz_error,
+            stretch_error,
         };
         eprintln!(
-            "      forward {:.3} ms, backward {:.3} ms, plain {:.3} ms, (forward + backward) / plain = {:.2}; wall {:.3} ms vs {:.3} ms; loss {loss:.5}",
+            "      forward {:.3} ms, backward {:.3} ms, plain {:.3} ms, (forward + backward) / plain = {:.2}; wall {:.3} ms vs {:.3} ms; loss {loss:.5}; dL/dtz {:.4} vs {fd_tz:.4} (error {:.2}%), stretch {got_stretch:.4} vs {fd_stretch:.4} (error {:.2}%)",
             row.forward_ms,
             row.backward_ms,
             row.plain_ms,
             (row.forward_ms + row.backward_ms) / row.plain_ms,
             row.wall_ms,
-            row.plain_wall_ms
+            row.plain_wall_ms,
+            result.pose_gradient[0][2],
+            100.0 * dtz_error,
+            100.0 * stretch_error,
         );
         rows.push(row);
     }
@@ -165,19 +234,19 @@ pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
 
 /// Writes `bench.csv` (the columns the peers' script writes too), `bench.json` (with wall
 /// times) and `bench.png` (time against vertex count, log axes).
-pub fn write(out: &Path, rows: &[Row], size: u32, device: &str) -> Result<()> {
+pub fn write(out: &Path, rows: &[Row], (width, height): (u32, u32), device: &str) -> Result<()> {
     let mut csv =
-        String::from("vertices,faces,width,height,forward_ms,backward_ms,plain_ms,device\n");
+        String::from("vertices,faces,width,height,forward_ms,backward_ms,plain_ms,device,dtz_error,stretch_error\n");
     let mut json = Vec::new();
     let device_field = device.replace(',', ";");
     for r in rows {
         csv.push_str(&format!(
-            "{},{},{size},{size},{:.4},{:.4},{:.4},{device_field}\n",
-            r.vertices, r.faces, r.forward_ms, r.backward_ms, r.plain_ms
+            "{},{},{width},{height},{:.4},{:.4},{:.4},{device_field},{:.5},{:.5}\n",
+            r.vertices, r.faces, r.forward_ms, r.backward_ms, r.plain_ms, r.dtz_error, r.stretch_error
         ));
         json.push(format!(
-            "  {{\"vertices\": {}, \"faces\": {}, \"width\": {size}, \"height\": {size}, \"forward_ms\": {:.4}, \"backward_ms\": {:.4}, \"plain_ms\": {:.4}, \"wall_ms\": {:.4}, \"plain_wall_ms\": {:.4}, \"device\": {:?}}}",
-            r.vertices, r.faces, r.forward_ms, r.backward_ms, r.plain_ms, r.wall_ms, r.plain_wall_ms, device
+            "  {{\"vertices\": {}, \"faces\": {}, \"width\": {width}, \"height\": {height}, \"forward_ms\": {:.4}, \"backward_ms\": {:.4}, \"plain_ms\": {:.4}, \"wall_ms\": {:.4}, \"plain_wall_ms\": {:.4}, \"dtz_error\": {:.5}, \"stretch_error\": {:.5}, \"device\": {:?}}}",
+            r.vertices, r.faces, r.forward_ms, r.backward_ms, r.plain_ms, r.wall_ms, r.plain_wall_ms, r.dtz_error, r.stretch_error, device
         ));
     }
     vkdr::io::write_atomically(&out.join("bench.csv"), csv.as_bytes()).context("bench.csv")?;
@@ -187,7 +256,7 @@ pub fn write(out: &Path, rows: &[Row], size: u32, device: &str) -> Result<()> {
     let series = |f: &dyn Fn(&Row) -> f64| rows.iter().map(|r| (r.vertices as f64, f(r))).collect();
     let name = device.split(" (").next().unwrap_or(device);
     let plot = Plot::new(
-        &format!("vkdr bench {size}x{size}, {name}"),
+        &format!("vkdr bench {width}x{height}, {name}"),
         "vertices",
         "GPU time per pass (ms)",
     )

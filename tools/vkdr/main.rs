@@ -43,9 +43,9 @@ enum Command {
     Grad(GradArgs),
     /// Time forward and backward passes against a plain colour render (1e3..1e6 vertices).
     Bench {
-        /// Image width and height in pixels.
-        #[arg(long, default_value_t = 1024)]
-        size: u32,
+        /// Image size WxH, or one number for a square image.
+        #[arg(long, default_value = "1024")]
+        size: String,
         /// Timed repeats per mesh (after one warm-up); medians are reported.
         #[arg(long, default_value_t = 10)]
         repeats: usize,
@@ -336,7 +336,7 @@ fn main() {
             max_vertices,
             loss,
             out,
-        } => bench(size, repeats, max_vertices, &loss, &out),
+        } => bench(&size, repeats, max_vertices, &loss, &out),
         Command::BenchRegister(args) => Context::new()
             .map_err(anyhow::Error::from)
             .and_then(|ctx| bench_register::run(&ctx, &args)),
@@ -462,7 +462,11 @@ fn grad(args: &GradArgs) -> Result<()> {
     Ok(())
 }
 
-fn bench(size: u32, repeats: usize, max_vertices: usize, loss: &str, out: &Path) -> Result<()> {
+fn bench(size: &str, repeats: usize, max_vertices: usize, loss: &str, out: &Path) -> Result<()> {
+    let size = match size.parse::<u32>() {
+        Ok(s) => (s, s),
+        Err(_) => parse_size(size)?,
+    };
     let ctx = Context::new()?;
     let device = format!("{} ({})", ctx.info().name, ctx.info().driver_info);
     println!("device: {device}");
@@ -475,16 +479,18 @@ fn bench(size: u32, repeats: usize, max_vertices: usize, loss: &str, out: &Path)
     let rows = bench::run(&ctx, &args)?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     bench::write(out, &rows, size, &device)?;
-    println!("vertices,faces,forward_ms,backward_ms,plain_ms,ratio");
+    println!("vertices,faces,forward_ms,backward_ms,plain_ms,ratio,dtz_error,stretch_error");
     for r in &rows {
         println!(
-            "{},{},{:.3},{:.3},{:.3},{:.2}",
+            "{},{},{:.3},{:.3},{:.3},{:.2},{:.4},{:.4}",
             r.vertices,
             r.faces,
             r.forward_ms,
             r.backward_ms,
             r.plain_ms,
-            (r.forward_ms + r.backward_ms) / r.plain_ms
+            (r.forward_ms + r.backward_ms) / r.plain_ms,
+            r.dtz_error,
+            r.stretch_error
         );
     }
     println!(
