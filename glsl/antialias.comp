@@ -1,8 +1,8 @@
 #version 460
 // Forward of the listed pixels (see classify.comp): shade (coverage or interpolated
 // attributes), antialias across silhouette edges between adjacent pixels, write the value
-// and add the loss terms to stats (atomically; subgroup sums where a subgroup shares a
-// view). Grid-stride loop over the work list.
+// and add the loss terms to stats_fixed (int64 atomics: the same sum in any order).
+// Grid-stride loop over the work list.
 #include "diff_pass.glsl"
 
 layout(local_size_x = 64) in;
@@ -31,32 +31,14 @@ void main() {
     ivec2 size = ivec2(pc.width, pc.height);
     uint count = work_count[0];
     uint stride = gl_NumWorkGroups.x * gl_WorkGroupSize.x;
-    // Every invocation runs the same number of rounds so that subgroup operations see
-    // the whole subgroup.
-    uint rounds = (count + stride - 1u) / stride;
-    for (uint round = 0u; round < rounds; ++round) {
-        uint i = gl_GlobalInvocationID.x + round * stride;
-        bool in_range = i < count;
-        uint index = in_range ? work[i] : 0u;
+    for (uint i = gl_GlobalInvocationID.x; i < count; i += stride) {
+        uint index = work[i];
         uint view = view_of(index);
-        vec3 terms = vec3(0.0);
-        if (in_range) {
-            ivec2 p = pixel_of(index);
-            vec4 a = antialiased_value(view, p, size, ids[index]);
-            store_antialiased(index, a);
-            terms = loss_terms(index, a);
-        }
-        if (subgroupAllEqual(view)) {
-            terms = subgroupAdd(terms);
-            if (subgroupElect()) {
-                for (int k = 0; k < 3; ++k) {
-                    if (terms[k] != 0.0) atomicAdd(stats[4u * view + uint(k)], terms[k]);
-                }
-            }
-        } else if (in_range) {
-            for (int k = 0; k < 3; ++k) {
-                if (terms[k] != 0.0) atomicAdd(stats[4u * view + uint(k)], terms[k]);
-            }
+        vec4 a = antialiased_value(view, pixel_of(index), size, ids[index]);
+        store_antialiased(index, a);
+        vec3 terms = loss_terms(index, a);
+        for (int k = 0; k < 3; ++k) {
+            if (terms[k] != 0.0) atomicAdd(stats_fixed[3u * view + uint(k)], to_fixed(terms[k], pc.stats_shift));
         }
     }
 }

@@ -1,18 +1,33 @@
 #version 460
 // Backward of antialias.comp over the work list (pixels off the list have no pair and
 // nothing interpolated): dL/dA per pixel (loss_gradient) pushed to the camera-space
-// vertex positions of every view (atomically, grad_camera[view][vertex]) through
+// vertex positions of every view (grad_camera_fixed[view][vertex], int64 fixed point, so
+// the sums do not depend on the order of the adds) through
 //   - the silhouette crossings: each pair is handled by its left / upper pixel, and
 //     d alpha / d(edge function) chains to the edge's two clip-space vertices;
 //   - with attributes, the interpolation: dL/dc per pixel (own term plus the pair terms
 //     that moved colour into or out of it) to the attributes (grad_attributes) and, via
 //     the exact barycentrics, to the triangle's three clip-space vertices.
+// It runs twice: stage 0 only finds the largest term of each sum kind (atomicMax into
+// work_count[CAMERA_MAX], [ATTRIBUTE_MAX]), stage 1 adds every term at the scale that
+// implies (include/fixed_point.glsl); fixed_resolve.comp turns the sums into floats.
 #include "diff_pass.glsl"
 
 layout(local_size_x = 64) in;
 
-layout(set = 0, binding = 10, std430) buffer GradCamera { float grad_camera[]; };        // [view][vertex][3]
-layout(set = 0, binding = 11, std430) buffer GradAttributes { float grad_attributes[]; };  // [view][vertex][channel]
+// Adds one term of a fixed-point sum, or (stage 0) records its magnitude.
+void add_camera_term(uint at, float g, int shift) {
+    if (pc.stage == 0u) atomicMax(work_count[CAMERA_MAX], magnitude_bits(g));
+    else if (g != 0.0) atomicAdd(grad_camera_fixed[at], to_fixed(g, shift));
+}
+
+void add_attribute_term(uint at, float g, int shift) {
+    if (pc.stage == 0u) atomicMax(work_count[ATTRIBUTE_MAX], magnitude_bits(g));
+    else if (g != 0.0) atomicAdd(grad_attributes_fixed[at], to_fixed(g, shift));
+}
+
+int camera_shift() { return fixed_shift(work_count[CAMERA_MAX], TERMS_PER_LISTED * work_count[0] + TERMS_PER_LISTED); }
+int attribute_shift() { return fixed_shift(work_count[ATTRIBUTE_MAX], TERMS_PER_LISTED * work_count[0] + TERMS_PER_LISTED); }
 
 // d clip / d camera is (sx, sy, ox, oy): x_clip = sx x + ox z, y_clip = sy y + oy z, w = z.
 void add_clip_gradient(ViewData vd, uint view, uint v, vec3 g_clip) {
@@ -20,9 +35,10 @@ void add_clip_gradient(ViewData vd, uint view, uint v, vec3 g_clip) {
     vec2 o = clip_shift(vd);
     vec3 g = vec3(s.x * g_clip.x, s.y * g_clip.y, o.x * g_clip.x + o.y * g_clip.y + g_clip.z);
     uint at = 3u * (view * pc.vertex_count + v);
-    atomicAdd(grad_camera[at], g.x);
-    atomicAdd(grad_camera[at + 1u], g.y);
-    atomicAdd(grad_camera[at + 2u], g.z);
+    int shift = camera_shift();
+    add_camera_term(at, g.x, shift);
+    add_camera_term(at + 1u, g.y, shift);
+    add_camera_term(at + 2u, g.z, shift);
 }
 
 void crossing_backward(ViewData vd, uint view, Pair pair) {
@@ -89,7 +105,7 @@ void handle_pixel(uint index) {
     vec3 g_b = vec3(0.0);
     for (int k = 0; k < 3; ++k) {
         for (uint ch = 0u; ch < pc.channels; ++ch) {
-            atomicAdd(grad_attributes[attribute_index(view, tri.v[k], ch)], b[k] * g_colour[ch]);
+            add_attribute_term(attribute_index(view, tri.v[k], ch), b[k] * g_colour[ch], attribute_shift());
             g_b[k] += g_colour[ch] * attributes[attribute_index(view, tri.v[k], ch)];
         }
     }

@@ -1,7 +1,7 @@
 #version 460
-// dL/ds_j = sum_v B_j[v] . dL/dx_v: one workgroup per latent dimension j (z), subgroup
-// sums added atomically into grad_latent[j] (zeroed before).
-#extension GL_EXT_shader_atomic_float : require
+// dL/ds_j = sum_v B_j[v] . dL/dx_v: one workgroup per latent dimension j (z). Each
+// invocation sums a fixed stride of the vertices, subgroups add their lanes, and the
+// first invocation adds the subgroups' sums in order: the same order every run.
 #extension GL_KHR_shader_subgroup_arithmetic : require
 #extension GL_KHR_shader_subgroup_basic : require
 layout(local_size_x = 64) in;
@@ -15,11 +15,19 @@ layout(push_constant, std430) uniform Constants {
     uint dims;
 } pc;
 
+shared float per_subgroup[64];
+
 void main() {
     uint j = gl_WorkGroupID.z;
     uint n = 3u * pc.vertex_count;
     float sum = 0.0;
     for (uint i = gl_LocalInvocationIndex; i < n; i += 64u) sum += basis[j * n + i] * gradient[i];
     sum = subgroupAdd(sum);
-    if (subgroupElect()) atomicAdd(grad_latent[j], sum);
+    if (subgroupElect()) per_subgroup[gl_SubgroupID] = sum;
+    barrier();
+    if (gl_LocalInvocationIndex == 0u) {
+        float total = 0.0;
+        for (uint s = 0u; s < gl_NumSubgroups; ++s) total += per_subgroup[s];
+        grad_latent[j] = total;
+    }
 }

@@ -100,9 +100,15 @@ void main() {
             state[pose_velocity_at() + c] = vt[c];
             state[pose_velocity_at() + 3u + c] = vr[c];
         }
+        // Steps are bounded in metres and radians: a first gradient near zero (a start at
+        // the optimum) sets a huge rate, and momentum must not then fling the object away.
+        vec3 dt = state[LR_TRANSLATION] * pose_decay * vt;
+        vec3 dr = state[LR_ROTATION] * pose_decay * vr;
+        if (length(dt) > pc.translation_step) dt *= pc.translation_step / length(dt);
+        if (length(dr) > pc.rotation_step) dr *= pc.rotation_step / length(dr);
         mat4 m = views[0].object_to_camera;
-        mat3 r = rodrigues(-state[LR_ROTATION] * pose_decay * vr) * mat3(m);
-        vec3 translation = m[3].xyz - state[LR_TRANSLATION] * pose_decay * vt;
+        mat3 r = rodrigues(-dr) * mat3(m);
+        vec3 translation = m[3].xyz - dt;
         views[0].object_to_camera = mat4(vec4(r[0], 0.0), vec4(r[1], 0.0), vec4(r[2], 0.0), vec4(translation, 1.0));
         state[POSE_STEPS] = float(k + 1u);
     }

@@ -1,9 +1,12 @@
 #version 460
 // Camera-space vertex gradients of every view to object-space vertex gradients (summed
-// over views, atomically) and to each view's pose gradient: translation t and a local
-// rotation increment d applied on the left (x_camera = exp([d]x) R x + t), so
-// dL/dt = sum g and dL/dd = sum (R x) x g. Subgroup sums are added atomically.
-#extension GL_EXT_shader_atomic_float : require
+// over views) and to each view's pose gradient: translation t and a local rotation
+// increment d applied on the left (x_camera = exp([d]x) R x + t), so dL/dt = sum g and
+// dL/dd = sum (R x) x g. No atomics, every sum in a fixed order:
+//   stage 0 (x over vertices): grad_object[v] = sum over views of R^T g, in view order;
+//   stage 1 (x over workgroups, z over views): each workgroup's sums over its fixed stride
+//            of vertices into partials[view][group][6];
+//   stage 2 (z over views): grad_pose[view] = the partials summed in group order.
 #extension GL_KHR_shader_subgroup_arithmetic : require
 #extension GL_KHR_shader_subgroup_basic : require
 #include "views.glsl"
@@ -15,24 +18,54 @@ layout(set = 0, binding = 1, std430) readonly buffer Views { ViewData views[]; }
 layout(set = 0, binding = 2, std430) readonly buffer GradCamera { float grad_camera[]; };  // [view][vertex][3]
 layout(set = 0, binding = 3, std430) buffer GradObject { float grad_object[]; };           // [vertex][3]
 layout(set = 0, binding = 4, std430) buffer GradPose { float grad_pose[]; };               // [view][6]
+layout(set = 0, binding = 5, std430) buffer Partials { float partials[]; };                // [view][group][6]
 
-layout(push_constant, std430) uniform Constants { uint vertex_count; } pc;
+layout(push_constant, std430) uniform Constants {
+    uint vertex_count;
+    uint view_count;
+    uint groups;  // workgroups of stage 1
+    uint stage;
+} pc;
+
+shared float per_subgroup[64][6];
+
+vec3 camera_gradient(uint view, uint v) {
+    uint at = 3u * (view * pc.vertex_count + v);
+    return vec3(grad_camera[at], grad_camera[at + 1u], grad_camera[at + 2u]);
+}
 
 void main() {
-    uint view = gl_GlobalInvocationID.z;
+    if (pc.stage == 0u) {
+        uint stride = gl_NumWorkGroups.x * gl_WorkGroupSize.x;
+        for (uint v = gl_GlobalInvocationID.x; v < pc.vertex_count; v += stride) {
+            vec3 g_object = vec3(0.0);
+            for (uint view = 0u; view < pc.view_count; ++view) {
+                g_object += transpose(mat3(views[view].object_to_camera)) * camera_gradient(view, v);
+            }
+            grad_object[3u * v] = g_object.x;
+            grad_object[3u * v + 1u] = g_object.y;
+            grad_object[3u * v + 2u] = g_object.z;
+        }
+        return;
+    }
+    uint view = gl_WorkGroupID.z;
+    if (pc.stage == 2u) {
+        if (gl_LocalInvocationIndex < 6u) {
+            float total = 0.0;
+            for (uint g = 0u; g < pc.groups; ++g) total += partials[6u * (view * pc.groups + g) + gl_LocalInvocationIndex];
+            grad_pose[6u * view + gl_LocalInvocationIndex] = total;
+        }
+        return;
+    }
     mat3 r = mat3(views[view].object_to_camera);
     vec3 sum_t = vec3(0.0);
     vec3 sum_r = vec3(0.0);
-    uint stride = gl_NumWorkGroups.x * gl_WorkGroupSize.x;
-    for (uint v = gl_GlobalInvocationID.x; v < pc.vertex_count; v += stride) {
-        uint at = 3u * (view * pc.vertex_count + v);
-        vec3 g = vec3(grad_camera[at], grad_camera[at + 1u], grad_camera[at + 2u]);
+    uint stride = pc.groups * gl_WorkGroupSize.x;
+    uint first = gl_WorkGroupID.x * gl_WorkGroupSize.x + gl_LocalInvocationIndex;
+    for (uint v = first; v < pc.vertex_count; v += stride) {
+        vec3 g = camera_gradient(view, v);
         if (g == vec3(0.0)) continue;
         vec3 x = vec3(positions[3u * v], positions[3u * v + 1u], positions[3u * v + 2u]);
-        vec3 g_object = transpose(r) * g;
-        atomicAdd(grad_object[3u * v], g_object.x);
-        atomicAdd(grad_object[3u * v + 1u], g_object.y);
-        atomicAdd(grad_object[3u * v + 2u], g_object.z);
         sum_t += g;
         sum_r += cross(r * x, g);
     }
@@ -40,8 +73,14 @@ void main() {
     sum_r = subgroupAdd(sum_r);
     if (subgroupElect()) {
         for (int k = 0; k < 3; ++k) {
-            atomicAdd(grad_pose[6u * view + uint(k)], sum_t[k]);
-            atomicAdd(grad_pose[6u * view + 3u + uint(k)], sum_r[k]);
+            per_subgroup[gl_SubgroupID][k] = sum_t[k];
+            per_subgroup[gl_SubgroupID][3 + k] = sum_r[k];
         }
+    }
+    barrier();
+    if (gl_LocalInvocationIndex < 6u) {
+        float total = 0.0;
+        for (uint s = 0u; s < gl_NumSubgroups; ++s) total += per_subgroup[s][gl_LocalInvocationIndex];
+        partials[6u * (view * pc.groups + gl_WorkGroupID.x) + gl_LocalInvocationIndex] = total;
     }
 }

@@ -474,3 +474,50 @@ fn eval_measures_every_condition() {
     );
     assert_eq!(row.curve_noise.len(), 30, "alignment and joint iterations");
 }
+
+/// Started at the true pose, the first pose gradient is nearly zero and sets a huge rate:
+/// the pose steps are bounded in metres and radians, so SGD and Adam stay near the truth
+/// (before the bound the object left the image within 4 iterations, x = -6.2 m).
+#[test]
+fn sgd_and_adam_started_at_the_truth_stay_there() {
+    let ctx = common::context();
+    let space = space(&ctx);
+    let truth = space.training_codes[3].clone();
+    let pose = Pose::new([0.0, 0.0, 0.6], [2.9, 0.3, 0.1]).unwrap();
+    let observed = observe(&ctx, &space, &space.vertices(&truth).unwrap(), view(pose));
+    let registrar = Registrar::new(&ctx).unwrap();
+    for optimizer in [Optimizer::Sgd, Optimizer::Adam] {
+        let params = RegisterParams {
+            iterations: 30,
+            pose_every: 1,
+            align: 0,
+            check_every: 10,
+            optimizer,
+            ..Default::default()
+        };
+        let job = Job::new(&space, &observed, view(pose));
+        let result = registrar.register(&ctx, job, &params, |_, _| {}).unwrap();
+        let moved = (result.pose.translation - pose.translation).length();
+        eprintln!("{optimizer:?}: moved {moved} m in {} iterations", result.iterations);
+        assert!(moved <= 30.0 * params.translation_step, "{optimizer:?} moved {moved} m");
+        assert!(moved < 0.02, "{optimizer:?} ran {moved} m from the truth");
+    }
+    common::assert_no_validation_errors(&ctx);
+}
+
+#[test]
+fn iteration_counts_that_would_not_fit_are_refused() {
+    let ctx = common::context();
+    let space = space(&ctx);
+    let observed = vec![0.0f32; 128 * 128];
+    let registrar = Registrar::new(&ctx).unwrap();
+    let pose = Pose::new([0.0, 0.0, 0.6], [2.9, 0.3, 0.1]).unwrap();
+    let params = RegisterParams {
+        iterations: usize::MAX,
+        ..Default::default()
+    };
+    let error = registrar
+        .register(&ctx, Job::new(&space, &observed, view(pose)), &params, |_, _| {})
+        .unwrap_err();
+    assert!(error.to_string().contains("at most"), "{error}");
+}

@@ -12,6 +12,7 @@
 #extension GL_KHR_shader_subgroup_ballot : require
 #extension GL_KHR_shader_subgroup_vote : require
 #include "views.glsl"
+#include "fixed_point.glsl"
 
 layout(set = 0, binding = 0, std430) readonly buffer Positions { float positions[]; };
 layout(set = 0, binding = 1, std430) readonly buffer Triangles { uint triangles[]; };
@@ -25,7 +26,17 @@ layout(set = 0, binding = 8, std430) buffer Antialiased { float antialiased[]; }
 layout(set = 0, binding = 9, std430) buffer Stats { float stats[]; };                   // [view][4]
 layout(set = 0, binding = 12, std430) buffer Partials { float partials[]; };            // [view][slot][3]
 layout(set = 0, binding = 13, std430) buffer Work { uint work[]; };                     // pixel indices
-layout(set = 0, binding = 14, std430) buffer WorkCount { uint work_count[]; };          // count, then 3 dispatch args
+layout(set = 0, binding = 14, std430) buffer WorkCount { uint work_count[]; };          // count, 3 dispatch args, then the slots below
+layout(set = 0, binding = 15, std430) buffer StatsFixed { int64_t stats_fixed[]; };    // [view][3], fixed point at pc.stats_shift
+layout(set = 0, binding = 16, std430) buffer GradCameraFixed { int64_t grad_camera_fixed[]; };  // [view][vertex][3]
+layout(set = 0, binding = 17, std430) buffer GradAttributesFixed { int64_t grad_attributes_fixed[]; };  // [view][vertex][channel]
+
+// work_count slots after the count and dispatch arguments (LOST_WALKS = 4 in diff.glsl):
+const uint CAMERA_MAX = 5u;     // magnitude_bits of the largest camera-gradient term
+const uint ATTRIBUTE_MAX = 6u;  // the same for attribute-gradient terms
+// A listed pixel adds at most this many terms to one vertex's sum (its own triangle's
+// interpolation and the crossings of its two forward pairs).
+const uint TERMS_PER_LISTED = 3u;
 
 // Losses (`loss::Loss`): mean squared error, soft IoU, signed-distance-weighted coverage.
 const uint LOSS_MSE = 0u;
@@ -33,9 +44,11 @@ const uint LOSS_IOU = 1u;
 const uint LOSS_DISTANCE = 2u;
 
 // stats[4 view + k]: 0 = sum of per-pixel loss terms, 1 = intersection, 2 = union,
-// 3 = the view's loss. antialias.comp adds its terms atomically (few pixels); classify.comp
-// leaves one partial sum per subgroup in `partials` (pc.partial_slots slots of 3 per view)
-// and loss_finalize.comp adds those and computes the loss.
+// 3 = the view's loss. antialias.comp adds its terms to stats_fixed (int64 fixed point at
+// pc.stats_shift, chosen on the host from a bound on the sums, so the order of the adds
+// cannot change the result); classify.comp leaves one partial sum per subgroup of a fixed
+// 8 x 8 tile in `partials` (pc.partial_slots slots of 3 per view); loss_finalize.comp adds
+// both in a fixed order and computes the loss.
 
 layout(push_constant, std430) uniform Constants {
     uint channels;  // 0: coverage, else interpolated attributes per vertex
@@ -44,6 +57,8 @@ layout(push_constant, std430) uniform Constants {
     uint width;
     uint height;
     uint partial_slots;
+    int stats_shift;
+    uint stage;  // antialias_backward.comp: 0 measures the largest terms, 1 adds them
 } pc;
 
 #include "diff.glsl"

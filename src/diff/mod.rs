@@ -4,8 +4,10 @@
 //! on the device from the vertex normals and a light), antialias it analytically
 //! across silhouette edges between adjacent pixels (the idea of nvdiffrast's `antialias`,
 //! with mesh topology to find silhouette edges and a walk across triangles smaller than a
-//! pixel), evaluate the loss, and push dL/dpixel back to every vertex (float `atomicAdd`)
-//! and to each view's pose (a reduction on the device).
+//! pixel), evaluate the loss, and push dL/dpixel back to every vertex and to each view's
+//! pose. Every sum that threads add to in parallel is int64 fixed point at a scale chosen
+//! from the data, or a reduction in a fixed order (`glsl/include/fixed_point.glsl`), so the
+//! same inputs give bit-identical results on the same device, run after run.
 //!
 //! [`reference`] is the float64 model the tests differentiate by central differences.
 
@@ -30,13 +32,23 @@ const ANTIALIAS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/antialias.com
 const BACKWARD: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/antialias_backward.comp.spv"));
 const FINALIZE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/loss_finalize.comp.spv"));
 const POSE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/pose_gradient.comp.spv"));
+const RESOLVE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/fixed_resolve.comp.spv"));
 const LAMBERT: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/lambert.comp.spv"));
 
 /// The work-count buffer: listed pixels, 3 dispatch arguments, then (at [`LOST_WALKS`])
-/// the silhouette searches that gave up since [`Scene::record_prepare`].
+/// the silhouette searches that gave up since [`Scene::record_prepare`], then the largest
+/// camera- and attribute-gradient terms of the fixed-point sums (`CAMERA_MAX`,
+/// `ATTRIBUTE_MAX` in `glsl/include/diff_pass.glsl`).
 const WORK_COUNT_WORDS: u64 = 8;
 /// As `LOST_WALKS` in `glsl/include/diff.glsl`.
 const LOST_WALKS: usize = 4;
+/// As `CAMERA_MAX` and `ATTRIBUTE_MAX` in `glsl/include/diff_pass.glsl`.
+const CAMERA_MAX: u32 = 5;
+const ATTRIBUTE_MAX: u32 = 6;
+/// As `TERMS_PER_LISTED` there.
+const TERMS_PER_LISTED: u32 = 3;
+/// Workgroups of the pose reduction's partial sums (at most).
+const POSE_GROUPS: u32 = 256;
 
 /// Marks an edge without exactly one neighbouring triangle.
 pub const NO_NEIGHBOUR: u32 = u32::MAX;
@@ -155,6 +167,52 @@ struct PassConstants {
     width: u32,
     height: u32,
     partial_slots: u32,
+    stats_shift: i32,
+    stage: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct FinalizeConstants {
+    loss: u32,
+    partial_slots: u32,
+    stats_shift: i32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct ResolveConstants {
+    count: u32,
+    max_slot: u32,
+    terms_per_listed: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct PoseConstants {
+    vertex_count: u32,
+    view_count: u32,
+    groups: u32,
+    stage: u32,
+}
+
+/// The scale (2^shift) of the fixed-point loss sums: every sum of a view's per-pixel terms
+/// stays below 2^61 for any image the scene can render, from a bound on the terms (images
+/// between 0 and the largest attribute, observed values as given, distances at most the
+/// image's diagonal in pixels).
+fn stats_shift(desc: &SceneDesc, width: u32, height: u32) -> i32 {
+    let largest = |values: &[f32]| values.iter().fold(0f64, |m, v| m.max(v.abs() as f64));
+    let observed = largest(desc.observed);
+    let rendered = desc.attributes.map_or(1.0, |(values, _)| largest(values));
+    let pixels = width as f64 * height as f64;
+    // Loss sums are per-pixel terms over N pixels divided by N; intersection and union
+    // are not divided.
+    let bound = match desc.loss {
+        Loss::Mse => (rendered + observed).powi(2),
+        Loss::Iou => pixels * (1.0 + observed).powi(2),
+        Loss::Distance => (width as f64).hypot(height as f64),
+    };
+    (61 - bound.max(1e-30).log2().ceil() as i32).clamp(-60, 120)
 }
 
 /// The pipelines of the differentiable renderer (create once, use for many scenes).
@@ -166,6 +224,7 @@ pub struct DiffRenderer {
     backward: ComputePipeline,
     finalize: ComputePipeline,
     pose: ComputePipeline,
+    resolve: ComputePipeline,
     lambert: ComputePipeline,
     distance: DistanceField,
 }
@@ -173,7 +232,7 @@ pub struct DiffRenderer {
 impl DiffRenderer {
     pub fn new(ctx: &Context) -> Result<Self> {
         let pass_bytes = std::mem::size_of::<PassConstants>() as u32;
-        let bindings = [BindingKind::StorageBuffer; 15];
+        let bindings = [BindingKind::StorageBuffer; 18];
         Ok(Self {
             rasterizer: Rasterizer::new(ctx)?,
             classify: ComputePipeline::new(
@@ -208,15 +267,22 @@ impl DiffRenderer {
                 ctx,
                 "loss finalize",
                 &spirv(FINALIZE)?,
-                &bindings[..2],
-                8,
+                &bindings[..3],
+                std::mem::size_of::<FinalizeConstants>() as u32,
             )?,
             pose: ComputePipeline::new(
                 ctx,
                 "pose gradient",
                 &spirv(POSE)?,
-                &[BindingKind::StorageBuffer; 5],
-                4,
+                &[BindingKind::StorageBuffer; 6],
+                std::mem::size_of::<PoseConstants>() as u32,
+            )?,
+            resolve: ComputePipeline::new(
+                ctx,
+                "fixed-point resolve",
+                &spirv(RESOLVE)?,
+                &[BindingKind::StorageBuffer; 3],
+                std::mem::size_of::<ResolveConstants>() as u32,
             )?,
             lambert: ComputePipeline::new(
                 ctx,
@@ -267,14 +333,22 @@ pub struct Scene {
     distance_scratch: Option<[Buffer; 2]>,
     antialiased: Buffer,
     stats: Buffer,
+    /// int64 fixed-point loss sums at `stats_shift`, [view][3].
+    stats_fixed: Buffer,
+    stats_shift: i32,
     partials: Buffer,
     partial_slots: u32,
     work: Buffer,
     work_count: Buffer,
     grad_camera: Buffer,
     grad_attributes: Buffer,
+    /// int64 fixed-point sums of the two above, resolved to them after the backward.
+    grad_camera_fixed: Buffer,
+    grad_attributes_fixed: Buffer,
     grad_object: Buffer,
     grad_pose: Buffer,
+    pose_partials: Buffer,
+    pose_groups: u32,
     ids: Buffer,
     loss: Loss,
     channels: u32,
@@ -388,8 +462,8 @@ impl Scene {
         let range = ctx.info().max_storage_buffer_range as u64;
         let largest = [
             ("the compared image", pixels * image_channels * 4),
-            ("the camera-space vertex gradients", n as u64 * vertices * 12),
-            ("the attribute gradients", n as u64 * vertices * channels as u64 * 4),
+            ("the camera-space vertex gradients", n as u64 * vertices * 24),
+            ("the attribute gradients", n as u64 * vertices * channels as u64 * 8),
         ];
         for (what, bytes) in largest {
             if bytes > range {
@@ -407,6 +481,8 @@ impl Scene {
         // One partial loss sum per subgroup of every 8 x 8 workgroup.
         let subgroups = 64u32.div_ceil(ctx.info().subgroup_size.max(1));
         let partial_slots = w.div_ceil(8) * h.div_ceil(8) * subgroups;
+        let stats_shift = stats_shift(desc, w, h);
+        let pose_groups = (vertices as u32).div_ceil(64).clamp(1, POSE_GROUPS);
         Ok(Self {
             gbuffer: Gbuffer::new(ctx, w, h, n, Outputs::Ids)?,
             neighbours: Buffer::from_slice(ctx, "neighbours", &neighbours(desc.mesh))?,
@@ -425,6 +501,8 @@ impl Scene {
             },
             antialiased: device("antialiased", pixels * image_channels * 4)?,
             stats: device("loss stats", n as u64 * 16)?,
+            stats_fixed: device("fixed-point loss stats", n as u64 * 24)?,
+            stats_shift,
             partials: device("loss partial sums", n as u64 * partial_slots as u64 * 12)?,
             partial_slots,
             work: device("work list", pixels * 4)?,
@@ -434,8 +512,15 @@ impl Scene {
                 "attribute gradients",
                 (n as u64 * vertices * channels as u64 * 4).max(4),
             )?,
+            grad_camera_fixed: device("fixed-point camera gradients", n as u64 * vertices * 24)?,
+            grad_attributes_fixed: device(
+                "fixed-point attribute gradients",
+                (n as u64 * vertices * channels as u64 * 8).max(8),
+            )?,
             grad_object: device("vertex gradients", vertices * 12)?,
             grad_pose: device("pose gradients", n as u64 * 24)?,
+            pose_partials: device("pose partial sums", n as u64 * pose_groups as u64 * 24)?,
+            pose_groups,
             ids: device("triangle ids", pixels * 4)?,
             mesh,
             views,
@@ -485,14 +570,23 @@ impl Scene {
             rec.reset_timestamps(t);
             rec.timestamp(t, 0);
         }
-        // The listed pixels and dispatch arguments; the lost-walk count runs on.
-        rec.fill_buffer_range(&self.work_count, 0, 16, 0);
+        // The listed pixels, dispatch arguments and largest terms; the lost-walk count
+        // runs on.
+        rec.fill_buffer_range(&self.work_count, 0, 4 * LOST_WALKS as u64, 0);
+        let after_lost = 4 * (LOST_WALKS as u64 + 1);
+        rec.fill_buffer_range(
+            &self.work_count,
+            after_lost,
+            4 * WORK_COUNT_WORDS - after_lost,
+            0,
+        );
         for buffer in [
             &self.stats,
+            &self.stats_fixed,
             &self.grad_camera,
             &self.grad_attributes,
-            &self.grad_object,
-            &self.grad_pose,
+            &self.grad_camera_fixed,
+            &self.grad_attributes_fixed,
         ] {
             rec.fill_buffer(buffer, 0);
         }
@@ -517,6 +611,8 @@ impl Scene {
             width: self.views.width(),
             height: self.views.height(),
             partial_slots: self.partial_slots,
+            stats_shift: self.stats_shift,
+            stage: 0,
         };
         let bindings = [
             Binding::buffer(self.mesh.positions()),
@@ -534,6 +630,9 @@ impl Scene {
             Binding::buffer(&self.partials),
             Binding::buffer(&self.work),
             Binding::buffer(&self.work_count),
+            Binding::buffer(&self.stats_fixed),
+            Binding::buffer(&self.grad_camera_fixed),
+            Binding::buffer(&self.grad_attributes_fixed),
         ];
         let (w, h, n) = (self.views.width(), self.views.height(), self.views.count());
         let work = Groups::Indirect(&self.work_count, 4);
@@ -561,8 +660,13 @@ impl Scene {
             &[
                 Binding::buffer(&self.stats),
                 Binding::buffer(&self.partials),
+                Binding::buffer(&self.stats_fixed),
             ],
-            &[self.loss.code(), self.partial_slots],
+            &FinalizeConstants {
+                loss: self.loss.code(),
+                partial_slots: self.partial_slots,
+                stats_shift: self.stats_shift,
+            },
             Groups::Count(1, 1, n),
         );
         rec.memory_barrier();
@@ -570,25 +674,71 @@ impl Scene {
             rec.timestamp(t, 1);
         }
 
-        rec.run_compute(&renderer.backward, &bindings, &constants, work);
+        // The backward twice: the largest terms first, then the fixed-point sums at the
+        // scale they allow (glsl/include/fixed_point.glsl), resolved to floats.
+        for stage in 0..2 {
+            let constants = PassConstants { stage, ..constants };
+            rec.run_compute(&renderer.backward, &bindings, &constants, work);
+            rec.memory_barrier();
+        }
+        let vertices = self.mesh.vertex_count();
+        let mut resolve = |fixed: &Buffer, floats: &Buffer, count: u32, max_slot: u32| {
+            rec.run_compute(
+                &renderer.resolve,
+                &[
+                    Binding::buffer(fixed),
+                    Binding::buffer(floats),
+                    Binding::buffer(&self.work_count),
+                ],
+                &ResolveConstants {
+                    count,
+                    max_slot,
+                    terms_per_listed: TERMS_PER_LISTED,
+                },
+                Groups::Count(count.div_ceil(64).clamp(1, 4096), 1, 1),
+            );
+        };
+        resolve(
+            &self.grad_camera_fixed,
+            &self.grad_camera,
+            n * vertices * 3,
+            CAMERA_MAX,
+        );
+        if self.channels > 0 {
+            resolve(
+                &self.grad_attributes_fixed,
+                &self.grad_attributes,
+                n * vertices * self.channels,
+                ATTRIBUTE_MAX,
+            );
+        }
         rec.memory_barrier();
         self.record_lambert(renderer, rec, 1);
         self.record_lambert(renderer, rec, 2);
 
-        let vertices = self.mesh.vertex_count();
-        rec.run_compute(
-            &renderer.pose,
-            &[
-                Binding::buffer(self.mesh.positions()),
-                Binding::buffer(self.views.views()),
-                Binding::buffer(&self.grad_camera),
-                Binding::buffer(&self.grad_object),
-                Binding::buffer(&self.grad_pose),
-            ],
-            &vertices,
-            Groups::Count(vertices.div_ceil(64).clamp(1, 256), 1, n),
-        );
-        rec.memory_barrier();
+        let pose_bindings = [
+            Binding::buffer(self.mesh.positions()),
+            Binding::buffer(self.views.views()),
+            Binding::buffer(&self.grad_camera),
+            Binding::buffer(&self.grad_object),
+            Binding::buffer(&self.grad_pose),
+            Binding::buffer(&self.pose_partials),
+        ];
+        let pose = |stage| PoseConstants {
+            vertex_count: vertices,
+            view_count: n,
+            groups: self.pose_groups,
+            stage,
+        };
+        let per_stage = [
+            Groups::Count(vertices.div_ceil(64).clamp(1, 4096), 1, 1),
+            Groups::Count(self.pose_groups, 1, n),
+            Groups::Count(1, 1, n),
+        ];
+        for (stage, groups) in per_stage.into_iter().enumerate() {
+            rec.run_compute(&renderer.pose, &pose_bindings, &pose(stage as u32), groups);
+            rec.memory_barrier();
+        }
         if let Some(t) = timing {
             rec.timestamp(t, 2);
         }
@@ -654,6 +804,12 @@ impl Scene {
             )));
         }
         Ok(())
+    }
+
+    /// Pixels listed next to a silhouette (or covered, with attributes) in the last
+    /// evaluation, over all views: 0 when nothing of the mesh is rendered.
+    pub fn listed_pixels(&self) -> Result<u32> {
+        Ok(self.work_count.read_range::<u32>(0, 1)?[0])
     }
 
     /// Reads every result back (after the submission completed); fails as

@@ -488,6 +488,10 @@ fn query_features(instance: &ash::Instance, pd: vk::PhysicalDevice) -> FeatureSu
                     "float32 atomic add (VK_EXT_shader_atomic_float)",
                     atomic_float.shader_buffer_float32_atomic_add == vk::TRUE,
                 ),
+                (
+                    "int64 and int64 buffer atomics (deterministic fixed-point sums)",
+                    core.shader_int64 == vk::TRUE && v12.shader_buffer_int64_atomics == vk::TRUE,
+                ),
                 ("timeline semaphores", v12.timeline_semaphore == vk::TRUE),
                 ("synchronization2", v13.synchronization2 == vk::TRUE),
                 ("dynamic rendering", v13.dynamic_rendering == vk::TRUE),
@@ -642,8 +646,11 @@ fn create_device(
     ];
     let core = vk::PhysicalDeviceFeatures::default()
         .vertex_pipeline_stores_and_atomics(true)
-        .fragment_stores_and_atomics(true);
-    let mut v12 = vk::PhysicalDeviceVulkan12Features::default().timeline_semaphore(true);
+        .fragment_stores_and_atomics(true)
+        .shader_int64(true);
+    let mut v12 = vk::PhysicalDeviceVulkan12Features::default()
+        .timeline_semaphore(true)
+        .shader_buffer_int64_atomics(true);
     let mut v13 = vk::PhysicalDeviceVulkan13Features::default()
         .synchronization2(true)
         .dynamic_rendering(true);

@@ -33,6 +33,9 @@ const LATENT_GRADIENT: &[u8] =
 const OPTIMIZER: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/optimizer.comp.spv"));
 const BFGS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/bfgs.comp.spv"));
 
+/// The most iterations (or alignment iterations) one registration may ask for.
+pub const MAX_ITERATIONS: usize = 100_000;
+
 /// How the latent code (and the pose) are updated.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Optimizer {
@@ -286,6 +289,15 @@ impl Registrar {
             return Err(Error::InvalidInput(
                 "registration needs at least one iteration".into(),
             ));
+        }
+        // The optimiser state holds every iteration's loss and code (f32 indices on the
+        // device): refuse counts whose layout would not fit rather than wrap.
+        for (what, count) in [("iterations", params.iterations), ("alignment iterations", params.align)] {
+            if count > MAX_ITERATIONS {
+                return Err(Error::InvalidInput(format!(
+                    "{count} {what}: at most {MAX_ITERATIONS} are supported"
+                )));
+            }
         }
         if params.pose_every == 0 || params.align == 0 {
             return self.run(ctx, jobs, params, false, started, 0, &mut on_chunk);
@@ -639,6 +651,16 @@ impl<'a> Task<'a> {
     /// returns the latest loss.
     fn check_plateau(&mut self, params: &RegisterParams) -> Result<f64> {
         self.scene.check_walks()?;
+        if self.scene.listed_pixels()? == 0 {
+            let pose = read_pose(self.scene.views())?;
+            return Err(Error::InvalidInput(format!(
+                "the registration lost the object after {} iterations: nothing of it is \
+                 rendered any more (pose translation {:?} m); start closer to the object or \
+                 take smaller steps",
+                self.done,
+                pose.translation.to_array()
+            )));
+        }
         let losses = self
             .state
             .read_range::<f32>(State::losses(self.k) as u64 * 4, self.done)?;

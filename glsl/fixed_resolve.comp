@@ -1,0 +1,27 @@
+#version 460
+// Converts a fixed-point sum buffer (see include/fixed_point.glsl) to floats: value i is
+// fixed[i] / 2^shift with the shift its terms were added at (from the largest term's
+// bits in work_count[pc.max_slot] and at most pc.terms_per_listed terms per listed pixel);
+// NaN everywhere when a term was not finite, so that callers still see it.
+#include "fixed_point.glsl"
+
+layout(local_size_x = 64) in;
+
+layout(set = 0, binding = 0, std430) readonly buffer Fixed { int64_t fixed_sum[]; };
+layout(set = 0, binding = 1, std430) buffer Floats { float values[]; };
+layout(set = 0, binding = 2, std430) readonly buffer WorkCount { uint work_count[]; };
+
+layout(push_constant, std430) uniform Constants {
+    uint count;
+    uint max_slot;
+    uint terms_per_listed;
+} pc;
+
+void main() {
+    uint max_bits = work_count[pc.max_slot];
+    int shift = fixed_shift(max_bits, pc.terms_per_listed * work_count[0] + pc.terms_per_listed);
+    uint stride = gl_NumWorkGroups.x * gl_WorkGroupSize.x;
+    for (uint i = gl_GlobalInvocationID.x; i < pc.count; i += stride) {
+        values[i] = max_bits >= NON_FINITE_BITS ? uintBitsToFloat(0x7fc00000u) : from_fixed(fixed_sum[i], shift);
+    }
+}
