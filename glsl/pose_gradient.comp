@@ -4,9 +4,10 @@
 // increment d applied on the left (x_camera = exp([d]x) R x + t), so dL/dt = sum g and
 // dL/dd = sum (R x) x g. No atomics, every sum in a fixed order:
 //   stage 0 (x over vertices): grad_object[v] = sum over views of R^T g, in view order;
-//   stage 1 (x over workgroups, z over views): each workgroup's sums over its fixed stride
-//            of vertices into partials[view][group][6];
-//   stage 2 (z over views): grad_pose[view] = the partials summed in group order.
+//   stage 1 (x over workgroups, z over views): each subgroup's sums over its fixed stride
+//            of vertices into partials[view][group][subgroup][6] (no shared memory: a
+//            barrier makes CPU drivers run a workgroup as coroutines, several times slower);
+//   stage 2 (z over views): grad_pose[view] = the partials summed in slot order.
 #extension GL_KHR_shader_subgroup_arithmetic : require
 #extension GL_KHR_shader_subgroup_basic : require
 #include "views.glsl"
@@ -25,9 +26,8 @@ layout(push_constant, std430) uniform Constants {
     uint view_count;
     uint groups;  // workgroups of stage 1
     uint stage;
+    uint subgroups;  // subgroups per workgroup (the partial slots of one workgroup)
 } pc;
-
-shared float per_subgroup[64][6];
 
 vec3 camera_gradient(uint view, uint v) {
     uint at = 3u * (view * pc.vertex_count + v);
@@ -52,7 +52,8 @@ void main() {
     if (pc.stage == 2u) {
         if (gl_LocalInvocationIndex < 6u) {
             float total = 0.0;
-            for (uint g = 0u; g < pc.groups; ++g) total += partials[6u * (view * pc.groups + g) + gl_LocalInvocationIndex];
+            uint slots = pc.groups * pc.subgroups;
+            for (uint g = 0u; g < slots; ++g) total += partials[6u * (view * slots + g) + gl_LocalInvocationIndex];
             grad_pose[6u * view + gl_LocalInvocationIndex] = total;
         }
         return;
@@ -72,15 +73,10 @@ void main() {
     sum_t = subgroupAdd(sum_t);
     sum_r = subgroupAdd(sum_r);
     if (subgroupElect()) {
-        for (int k = 0; k < 3; ++k) {
-            per_subgroup[gl_SubgroupID][k] = sum_t[k];
-            per_subgroup[gl_SubgroupID][3 + k] = sum_r[k];
+        uint slot = (view * pc.groups + gl_WorkGroupID.x) * pc.subgroups + gl_SubgroupID;
+        for (uint k = 0u; k < 3u; ++k) {
+            partials[6u * slot + k] = sum_t[k];
+            partials[6u * slot + 3u + k] = sum_r[k];
         }
-    }
-    barrier();
-    if (gl_LocalInvocationIndex < 6u) {
-        float total = 0.0;
-        for (uint s = 0u; s < gl_NumSubgroups; ++s) total += per_subgroup[s][gl_LocalInvocationIndex];
-        partials[6u * (view * pc.groups + gl_WorkGroupID.x) + gl_LocalInvocationIndex] = total;
     }
 }

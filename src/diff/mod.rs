@@ -194,6 +194,7 @@ struct PoseConstants {
     view_count: u32,
     groups: u32,
     stage: u32,
+    subgroups: u32,
 }
 
 /// The scale (2^shift) of the fixed-point loss sums: every sum of a view's per-pixel terms
@@ -349,6 +350,8 @@ pub struct Scene {
     grad_pose: Buffer,
     pose_partials: Buffer,
     pose_groups: u32,
+    /// Subgroups per 64-wide workgroup.
+    subgroups: u32,
     ids: Buffer,
     loss: Loss,
     channels: u32,
@@ -519,8 +522,12 @@ impl Scene {
             )?,
             grad_object: device("vertex gradients", vertices * 12)?,
             grad_pose: device("pose gradients", n as u64 * 24)?,
-            pose_partials: device("pose partial sums", n as u64 * pose_groups as u64 * 24)?,
+            pose_partials: device(
+                "pose partial sums",
+                n as u64 * pose_groups as u64 * subgroups as u64 * 24,
+            )?,
             pose_groups,
+            subgroups,
             ids: device("triangle ids", pixels * 4)?,
             mesh,
             views,
@@ -729,6 +736,7 @@ impl Scene {
             view_count: n,
             groups: self.pose_groups,
             stage,
+            subgroups: self.subgroups,
         };
         let per_stage = [
             Groups::Count(vertices.div_ceil(64).clamp(1, 4096), 1, 1),
