@@ -68,7 +68,10 @@ fn gradients_are_bit_identical_run_to_run() {
         };
         let (a, b) = (evaluate(&ctx, &desc), evaluate(&ctx, &desc));
         let name = format!("{} loss, shading {}", loss.name(), shading.is_some());
-        assert!(a.vertex_gradient.iter().flatten().any(|&g| g != 0.0), "{name}: vacuous");
+        assert!(
+            a.vertex_gradient.iter().flatten().any(|&g| g != 0.0),
+            "{name}: vacuous"
+        );
         assert_eq!(bits(a.loss.clone()), bits(b.loss.clone()), "{name}: loss");
         assert_eq!(
             bits(a.vertex_gradient.iter().flatten().copied()),
@@ -85,7 +88,11 @@ fn gradients_are_bit_identical_run_to_run() {
             bits(b.attribute_gradient.clone()),
             "{name}: attribute gradient"
         );
-        assert_eq!(bits(a.antialiased.clone()), bits(b.antialiased.clone()), "{name}: image");
+        assert_eq!(
+            bits(a.antialiased.clone()),
+            bits(b.antialiased.clone()),
+            "{name}: image"
+        );
     }
     common::assert_no_validation_errors(&ctx);
 }
@@ -94,7 +101,12 @@ fn space(ctx: &vkdr::gpu::Context) -> ShapeSpace {
     let mut rng = Rng::new(11);
     let canonical = instance("bottle", &mut rng).unwrap();
     let train: Vec<(String, Vec<DVec3>)> = (0..5)
-        .map(|i| (format!("b{i}"), instance("bottle", &mut rng).unwrap().points()))
+        .map(|i| {
+            (
+                format!("b{i}"),
+                instance("bottle", &mut rng).unwrap().points(),
+            )
+        })
         .collect();
     let params = CpdParams {
         max_iterations: 40,
@@ -108,11 +120,7 @@ fn same_registration(a: &Registration, b: &Registration, name: &str) {
     assert_eq!(f64_bits(&a.code), f64_bits(&b.code), "{name}: code");
     assert_eq!(f64_bits(&a.losses), f64_bits(&b.losses), "{name}: losses");
     let pose = |r: &Registration| {
-        f64_bits(&[
-            r.pose.translation.to_array(),
-            r.pose.rotation.to_array(),
-        ]
-        .concat())
+        f64_bits(&[r.pose.translation.to_array(), r.pose.rotation.to_array()].concat())
     };
     assert_eq!(pose(a), pose(b), "{name}: pose");
     assert_eq!(a.iterations, b.iterations, "{name}: iterations");
@@ -128,7 +136,10 @@ fn registrations_are_bit_identical_run_to_run() {
     let truth = space.training_codes[1].clone();
     let camera = Camera::new(260.0, 260.0, 64.0, 64.0, 128, 128).unwrap();
     let pose = Pose::new([0.0, 0.0, 0.6], [2.9, 0.3, 0.1]).unwrap();
-    let mesh = space.canonical.with_points(&space.vertices(&truth).unwrap()).unwrap();
+    let mesh = space
+        .canonical
+        .with_points(&space.vertices(&truth).unwrap())
+        .unwrap();
     let ids = Rasterizer::new(&ctx)
         .unwrap()
         .render(&ctx, &mesh, &[View { camera, pose }], Outputs::Ids)

@@ -444,10 +444,11 @@ fn object_entirely_outside_the_image_has_zero_gradient() {
     );
 }
 
-#[test]
-fn one_surface_occluding_another() {
-    let front = Mesh::uv_sphere(0.06, 6, 9);
-    let back = Mesh::uv_sphere(0.1, 6, 9);
+/// A sphere of radius 0.06 in front of one of 0.1 (both `rings` x `segments`, each
+/// triangle cut into 4^`times`), seen as in [`sphere_case`].
+fn occluder_case(rings: u32, segments: u32, times: usize) -> Case {
+    let front = subdivided(&Mesh::uv_sphere(0.06, rings, segments), times);
+    let back = subdivided(&Mesh::uv_sphere(0.1, rings, segments), times);
     let offset = front.vertex_count() as u32;
     let positions = front
         .positions()
@@ -463,7 +464,12 @@ fn one_surface_occluding_another() {
         .collect();
     let mut case = sphere_case(Loss::Mse, 0.1, 0.45, 64);
     case.mesh = Mesh::new(positions, triangles).unwrap();
-    assert_gradients_match(&case);
+    case
+}
+
+#[test]
+fn one_surface_occluding_another() {
+    assert_gradients_match(&occluder_case(6, 9, 0));
 }
 
 #[test]
@@ -543,7 +549,10 @@ fn assert_same_surface_gradients(coarse: &Case, fine: &Case) {
         coarse.mesh.triangle_count(),
         fine.mesh.triangle_count()
     );
-    assert!((loss_c - loss_f).abs() <= 1e-4 * loss_c, "loss {loss_c} / {loss_f}");
+    assert!(
+        (loss_c - loss_f).abs() <= 1e-4 * loss_c,
+        "loss {loss_c} / {loss_f}"
+    );
     let (pose_error, pose_norm) = relative_error(&pose_f, &pose_c);
     assert!(pose_norm > 0.0, "vacuous: zero pose gradient");
     assert!(pose_error <= 2e-3, "pose gradient {pose_c:?} / {pose_f:?}");
@@ -618,26 +627,7 @@ fn one_silhouette_edge_behind_many_sub_pixel_triangles() {
 
 #[test]
 fn dense_occluder_in_front_of_a_dense_sphere() {
-    let scene = |times: usize| {
-        let front = subdivided(&Mesh::uv_sphere(0.06, 8, 12), times);
-        let back = subdivided(&Mesh::uv_sphere(0.1, 8, 12), times);
-        let offset = front.vertex_count() as u32;
-        let positions = front
-            .positions()
-            .iter()
-            .map(|p| [p[0] + 0.05, p[1] + 0.02, p[2] - 0.12])
-            .chain(back.positions().iter().copied())
-            .collect();
-        let triangles = front
-            .triangles()
-            .iter()
-            .copied()
-            .chain(back.triangles().iter().map(|t| t.map(|v| v + offset)))
-            .collect();
-        let mut case = sphere_case(Loss::Mse, 0.1, 0.45, 64);
-        case.mesh = Mesh::new(positions, triangles).unwrap();
-        case
-    };
+    let scene = |times| occluder_case(8, 12, times);
     let fine = scene(3);
     let (report, _) = check_subset(&fine);
     assert_report_within_tolerance(&report);

@@ -498,8 +498,14 @@ fn sgd_and_adam_started_at_the_truth_stay_there() {
         let job = Job::new(&space, &observed, view(pose));
         let result = registrar.register(&ctx, job, &params, |_, _| {}).unwrap();
         let moved = (result.pose.translation - pose.translation).length();
-        eprintln!("{optimizer:?}: moved {moved} m in {} iterations", result.iterations);
-        assert!(moved <= 30.0 * params.translation_step, "{optimizer:?} moved {moved} m");
+        eprintln!(
+            "{optimizer:?}: moved {moved} m in {} iterations",
+            result.iterations
+        );
+        assert!(
+            moved <= 30.0 * params.translation_step,
+            "{optimizer:?} moved {moved} m"
+        );
         assert!(moved < 0.02, "{optimizer:?} ran {moved} m from the truth");
     }
     common::assert_no_validation_errors(&ctx);
@@ -517,7 +523,12 @@ fn iteration_counts_that_would_not_fit_are_refused() {
         ..Default::default()
     };
     let error = registrar
-        .register(&ctx, Job::new(&space, &observed, view(pose)), &params, |_, _| {})
+        .register(
+            &ctx,
+            Job::new(&space, &observed, view(pose)),
+            &params,
+            |_, _| {},
+        )
         .unwrap_err();
     assert!(error.to_string().contains("at most"), "{error}");
 }

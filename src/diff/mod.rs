@@ -465,8 +465,14 @@ impl Scene {
         let range = ctx.info().max_storage_buffer_range as u64;
         let largest = [
             ("the compared image", pixels * image_channels * 4),
-            ("the camera-space vertex gradients", n as u64 * vertices * 24),
-            ("the attribute gradients", n as u64 * vertices * channels as u64 * 8),
+            (
+                "the camera-space vertex gradients",
+                n as u64 * vertices * 24,
+            ),
+            (
+                "the attribute gradients",
+                n as u64 * vertices * channels as u64 * 8,
+            ),
         ];
         for (what, bytes) in largest {
             if bytes > range {
@@ -803,7 +809,9 @@ impl Scene {
     /// `glsl/include/diff.glsl`) in any evaluation since [`Scene::record_prepare`]: the
     /// gradients would miss that crossing.
     pub fn check_walks(&self) -> Result<()> {
-        let lost = self.work_count.read_range::<u32>(0, WORK_COUNT_WORDS as usize)?[LOST_WALKS];
+        let lost = self
+            .work_count
+            .read_range::<u32>(0, WORK_COUNT_WORDS as usize)?[LOST_WALKS];
         if lost > 0 {
             return Err(Error::Limit(format!(
                 "{lost} silhouette searches crossed more than 65536 triangles between two \

@@ -292,7 +292,10 @@ impl Registrar {
         }
         // The optimiser state holds every iteration's loss and code (f32 indices on the
         // device): refuse counts whose layout would not fit rather than wrap.
-        for (what, count) in [("iterations", params.iterations), ("alignment iterations", params.align)] {
+        for (what, count) in [
+            ("iterations", params.iterations),
+            ("alignment iterations", params.align),
+        ] {
             if count > MAX_ITERATIONS {
                 return Err(Error::InvalidInput(format!(
                     "{count} {what}: at most {MAX_ITERATIONS} are supported"

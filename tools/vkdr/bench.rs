@@ -195,7 +195,16 @@ pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
         let fd_tz = (moved(h)? - moved(-h)?) / (2.0 * h);
         let dtz_error = relative_error(result.pose_gradient[0][2] as f64, fd_tz);
         let e = 0.003;
-        let stretch = |e: f32| loss_of(ctx, &renderer, &stretched(&mesh, e)?, view, &mask, args.loss);
+        let stretch = |e: f32| {
+            loss_of(
+                ctx,
+                &renderer,
+                &stretched(&mesh, e)?,
+                view,
+                &mask,
+                args.loss,
+            )
+        };
         let fd_stretch = (stretch(e)? - stretch(-e)?) / (2.0 * e as f64);
         let got_stretch: f64 = result
             .vertex_gradient
@@ -242,7 +251,13 @@ pub fn write(out: &Path, rows: &[Row], (width, height): (u32, u32), device: &str
     for r in rows {
         csv.push_str(&format!(
             "{},{},{width},{height},{:.4},{:.4},{:.4},{device_field},{:.5},{:.5}\n",
-            r.vertices, r.faces, r.forward_ms, r.backward_ms, r.plain_ms, r.dtz_error, r.stretch_error
+            r.vertices,
+            r.faces,
+            r.forward_ms,
+            r.backward_ms,
+            r.plain_ms,
+            r.dtz_error,
+            r.stretch_error
         ));
         json.push(format!(
             "  {{\"vertices\": {}, \"faces\": {}, \"width\": {width}, \"height\": {height}, \"forward_ms\": {:.4}, \"backward_ms\": {:.4}, \"plain_ms\": {:.4}, \"wall_ms\": {:.4}, \"plain_wall_ms\": {:.4}, \"dtz_error\": {:.5}, \"stretch_error\": {:.5}, \"device\": {:?}}}",
