@@ -18,6 +18,7 @@ vec4 antialiased_value(uint view, ivec2 p, ivec2 size, uint id) {
         // Pairs are always made from their left / upper pixel, as the backward does.
         Pair pair = s < 2 ? make_pair(vd, view, p, q, s == 0) : make_pair(vd, view, q, p, s == 2);
         if (pair.lost) atomicAdd(work_count[LOST_WALKS], 1u);
+        if (pair.missed && s < 2) atomicAdd(work_count[MISSED_STARTS], 1u);
         if (!pair.valid) continue;
         ivec2 affected = pair.affects_g ? pair.g : pair.f;
         if (affected != p) continue;

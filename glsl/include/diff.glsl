@@ -61,34 +61,52 @@ float depth_on(Triangle tri, vec2 p) {
 //
 // Design. The search walks along the segment across the triangles of the front surface,
 // edge by edge, until it leaves through a silhouette edge: one with no neighbour, or
-// whose neighbour faces the other way. Three properties make it exact at any mesh
+// whose neighbour faces the other way. Four properties make it exact at any mesh
 // density:
 //  * No step limit short of MAX_WALK, a guard against broken meshes far above any real
 //    count (a smooth rim seen edge-on has about sqrt(triangles per pixel) triangles
 //    between two pixel centres; a 5e6-triangle sphere about a hundred). A walk that
-//    reaches the guard is counted in work_count[LOST_WALKS] and the host refuses the
-//    result (`Error::Limit`): a crossing is never dropped silently.
+//    reaches the guard, or finds the mesh's neighbour table inconsistent, is counted in
+//    work_count[LOST_WALKS] and the host refuses the result (`Error::Limit`): a crossing
+//    is never dropped silently.
 //  * Occlusion comes with it: the walk starts on the surface seen at the front pixel and
 //    only ever crosses that surface, so an edge hidden behind nearer geometry is never
 //    reached, and whichever triangle owns the edge, the walk arrives at it.
-//  * Topological consistency: a shared edge's function is evaluated from its two vertices
-//    in index order (walk_edge_function), so both triangles see the same bits and the
-//    walk cannot leave one triangle through an edge that its neighbour says was not
-//    crossed, however thin the triangles are.
+//  * Decisions that cannot contradict each other. Which edge the walk leaves a triangle
+//    by is decided by the side of the segment's line its corner opposite the entry edge
+//    lies on (the line must leave through the edge joining that corner to the entry
+//    edge's corner on the other side). That side is a property of the vertex alone,
+//    computed by one expression, so every triangle around a vertex sees the same answer
+//    and the walk cannot lose its way in triangles far thinner than float32 resolves
+//    (comparing three independently rounded crossing parameters per triangle did: about
+//    one walk in a thousand found no exit on a 1e4-vertex sphere and its crossing was
+//    dropped). Only the first triangle compares parameters, to pick its exit.
+//  * A shared edge's function is evaluated from its two vertices in index order
+//    (walk_edge_function), so both triangles see the same bits when the walk asks
+//    whether the segment ends before that edge.
 // Rasterizing the silhouette edges instead (redner's edge sampling, Li et al. 2018) finds
 // crossings without walking, but needs a visibility test per crossing that one G-buffer
 // cannot answer between pixel centres; nvdiffrast only looks at the two triangles at the
 // pixel centres and misses the edge when more lie between (the failure this replaces).
 //
+// The pixel centre need not lie inside the first triangle (the rasterizer snaps vertices
+// to its sub-pixel grid, and a triangle thinner than that grid can own a pixel whose
+// centre it misses): the crossing can then lie behind pf (alpha < 0, clamped in
+// make_pair), and when the segment's line misses that triangle altogether there is no
+// crossing to differentiate (counted in work_count[MISSED_STARTS], reported by bench).
+//
 // alpha is the crossing's position along the segment (0 at pf); ef and eb are that
 // edge's function (edge_function(c_i, c_j) of its corners in triangle order) at pf and pb,
 // alpha = ef / (ef - eb).
 const int MAX_WALK = 65536;
-const uint LOST_WALKS = 4u;  // work_count slot counting walks that reached MAX_WALK
+const uint LOST_WALKS = 4u;     // work_count slot counting walks that could not finish
+const uint MISSED_STARTS = 7u;  // work_count slot counting lines that miss their start
+const uint NO_VERTEX = 0xffffffffu;
 
 struct Crossing {
     bool found;
-    bool lost;  // the walk reached MAX_WALK
+    bool lost;    // the walk reached MAX_WALK or met an inconsistent neighbour table
+    bool missed;  // the segment's line misses the first triangle
     uint triangle;
     int edge;  // opposite corner `edge`: corners (edge + 1) % 3 and (edge + 2) % 3
     float alpha;
@@ -105,60 +123,82 @@ float walk_edge_function(Triangle tri, int k, vec2 p) {
     return -edge_function(tri.clip[j], tri.clip[i], p);
 }
 
+// Which side of the line through pf along d the clip-space point c lies on (w > 0).
+bool left_of_line(vec3 c, vec2 pf, vec2 d) {
+    precise float side = cross2(d, c.xy - pf * c.z);
+    return side >= 0.0;
+}
+
 Crossing find_crossing(ViewData vd, uint t, vec2 pf, vec2 pb) {
-    Crossing none;
-    none.found = false;
-    none.lost = false;
+    Crossing c;
+    c.found = false;
+    c.lost = false;
+    c.missed = false;
+    vec2 d = pb - pf;
     uint current = t;
-    uint previous = NO_NEIGHBOUR;
-    // Where the walk entered the current triangle. The pixel centre need not lie inside the
-    // first triangle (the rasterizer snaps vertices to its sub-pixel grid, and a triangle
-    // thinner than that grid can own a pixel whose centre it misses): an edge is left
-    // where the segment's line goes from its inner to its outer side, at any parameter
-    // past the entry, even below 0 (alpha is clamped to 0 there; see make_pair).
-    float entry = -3.0e38;
+    uvec2 entry = uvec2(NO_VERTEX);  // the vertices of the edge the walk came in by
     for (int step = 0; step < MAX_WALK; ++step) {
         Triangle tri = load_triangle(vd, current);
         // The triangle's orientation on screen; det(clip corners) = sx sy det(camera corners).
         float inside = facing(tri);
+        bvec3 left = bvec3(left_of_line(tri.clip[0], pf, d), left_of_line(tri.clip[1], pf, d),
+                           left_of_line(tri.clip[2], pf, d));
         int exit_edge = -1;
-        float exit_alpha = 2.0;
-        float exit_ef = 0.0;
-        float exit_eb = 0.0;
-        for (int k = 0; k < 3; ++k) {
-            if (previous != NO_NEIGHBOUR && neighbours[3u * current + uint(k)] == previous) continue;
-            float ef = walk_edge_function(tri, k, pf);
-            float eb = walk_edge_function(tri, k, pb);
-            if ((ef - eb) * inside > 0.0 && eb * inside < 0.0) {
-                float a = ef / (ef - eb);
-                if (a >= entry && a < exit_alpha) {
-                    exit_alpha = a;
+        if (step == 0) {
+            // Of the edges the line crosses (corners on both sides), the one it leaves by.
+            float best = -3.0e38;
+            for (int k = 0; k < 3; ++k) {
+                if (left[(k + 1) % 3] == left[(k + 2) % 3]) continue;
+                float ef = walk_edge_function(tri, k, pf);
+                float eb = walk_edge_function(tri, k, pb);
+                float outward = (ef - eb) * inside;
+                if (outward > best) {
+                    best = outward;
                     exit_edge = k;
-                    exit_ef = ef;
-                    exit_eb = eb;
                 }
             }
+            if (exit_edge < 0) {
+                c.missed = true;
+                return c;
+            }
+        } else {
+            // The corner opposite the entry edge, and the entry corner on its other side.
+            int apex = -1;
+            int on_entry = 0;
+            for (int k = 0; k < 3; ++k) {
+                if (tri.v[k] == entry.x || tri.v[k] == entry.y) ++on_entry;
+                else apex = k;
+            }
+            if (on_entry != 2 || apex < 0) {
+                c.lost = true;  // the neighbour table does not match the triangles
+                return c;
+            }
+            int i = (apex + 1) % 3;
+            int j = (apex + 2) % 3;
+            // Leave by the edge apex-i if i is across the line from apex (the edge opposite
+            // j), else by apex-j (opposite i).
+            exit_edge = left[i] != left[apex] ? j : i;
         }
-        if (exit_edge < 0) return none;
+        float ef = walk_edge_function(tri, exit_edge, pf);
+        float eb = walk_edge_function(tri, exit_edge, pb);
+        // The segment ends before the exit: pb is on this surface, no silhouette between.
+        if (eb * inside >= 0.0) return c;
         uint next = neighbours[3u * current + uint(exit_edge)];
         bool silhouette = next == NO_NEIGHBOUR || facing(load_triangle(vd, next)) != inside;
         if (silhouette) {
-            Crossing c;
             c.found = true;
-            c.lost = false;
             c.triangle = current;
             c.edge = exit_edge;
-            c.alpha = exit_alpha;
-            c.ef = exit_ef;
-            c.eb = exit_eb;
+            c.alpha = ef / (ef - eb);
+            c.ef = ef;
+            c.eb = eb;
             return c;
         }
-        previous = current;
+        entry = uvec2(tri.v[(exit_edge + 1) % 3], tri.v[(exit_edge + 2) % 3]);
         current = next;
-        entry = exit_alpha;
     }
-    none.lost = true;
-    return none;
+    c.lost = true;
+    return c;
 }
 
 // Whether the crossing edge is handled by a pair along x (the edge is closer to vertical
@@ -176,6 +216,7 @@ bool handled_along_x(Triangle tri, int edge, ViewData vd) {
 struct Pair {
     bool valid;
     bool lost;            // the silhouette search gave up (see find_crossing)
+    bool missed;          // the segment's line misses the front pixel's triangle
     bool clamped;         // the crossing lies behind f's centre: alpha held at 0
     ivec2 f;
     ivec2 g;
@@ -190,6 +231,7 @@ Pair make_pair(ViewData vd, uint view, ivec2 p, ivec2 q, bool along_x) {
     Pair pair;
     pair.valid = false;
     pair.lost = false;
+    pair.missed = false;
     pair.clamped = false;
     uint id_p = id_at(p, view);
     uint id_q = id_at(q, view);
@@ -208,6 +250,7 @@ Pair make_pair(ViewData vd, uint view, ivec2 p, ivec2 q, bool along_x) {
     vec2 pb = p_front ? nq : np;
     Crossing c = find_crossing(vd, pair.front_triangle, pf, pb);
     pair.lost = c.lost;
+    pair.missed = c.missed;
     if (!c.found) return pair;
     Triangle edge_tri = load_triangle(vd, c.triangle);
     if (handled_along_x(edge_tri, c.edge, vd) != along_x) return pair;

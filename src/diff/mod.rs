@@ -38,13 +38,16 @@ const LAMBERT: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/lambert.comp.sp
 /// The work-count buffer: listed pixels, 3 dispatch arguments, then (at [`LOST_WALKS`])
 /// the silhouette searches that gave up since [`Scene::record_prepare`], then the largest
 /// camera- and attribute-gradient terms of the fixed-point sums (`CAMERA_MAX`,
-/// `ATTRIBUTE_MAX` in `glsl/include/diff_pass.glsl`).
+/// `ATTRIBUTE_MAX` in `glsl/include/diff_pass.glsl`), then the last evaluation's pixel
+/// pairs whose line misses the front triangle ([`Scene::missed_starts`]).
 const WORK_COUNT_WORDS: u64 = 8;
 /// As `LOST_WALKS` in `glsl/include/diff.glsl`.
 const LOST_WALKS: usize = 4;
 /// As `CAMERA_MAX` and `ATTRIBUTE_MAX` in `glsl/include/diff_pass.glsl`.
 const CAMERA_MAX: u32 = 5;
 const ATTRIBUTE_MAX: u32 = 6;
+/// As `MISSED_STARTS` in `glsl/include/diff.glsl`.
+const MISSED_STARTS: usize = 7;
 /// As `TERMS_PER_LISTED` there.
 const TERMS_PER_LISTED: u32 = 3;
 /// Workgroups of the pose reduction's partial sums (at most).
@@ -55,12 +58,16 @@ pub const NO_NEIGHBOUR: u32 = u32::MAX;
 
 /// For each triangle t and corner k, the triangle across the edge opposite corner k
 /// (`neighbours[3 t + k]`), or [`NO_NEIGHBOUR`] for a boundary edge or one shared by more
-/// than two triangles. Edges are matched by vertex index (welded meshes).
+/// than two triangles. Edges are matched by vertex index (welded meshes). A triangle that
+/// names a vertex twice has no area and no neighbours, and is no triangle's neighbour.
 pub fn neighbours(mesh: &Mesh) -> Vec<u32> {
     let triangles = mesh.triangles();
     let mut edges: HashMap<(u32, u32), Vec<(u32, usize)>> =
         HashMap::with_capacity(triangles.len() * 3 / 2);
     for (t, tri) in triangles.iter().enumerate() {
+        if tri[0] == tri[1] || tri[1] == tri[2] || tri[2] == tri[0] {
+            continue;
+        }
         for k in 0..3 {
             let (a, b) = (tri[(k + 1) % 3], tri[(k + 2) % 3]);
             edges
@@ -814,12 +821,22 @@ impl Scene {
             .read_range::<u32>(0, WORK_COUNT_WORDS as usize)?[LOST_WALKS];
         if lost > 0 {
             return Err(Error::Limit(format!(
-                "{lost} silhouette searches crossed more than 65536 triangles between two \
-                 pixel centres without reaching an edge; the mesh is likely broken \
-                 (non-manifold or self-intersecting), and its gradients would be wrong"
+                "{lost} silhouette searches could not finish: they crossed more than 65536 \
+                 triangles between two pixel centres, or met triangles whose neighbour \
+                 table does not match them; the mesh is likely broken (non-manifold or \
+                 self-intersecting), and its gradients would be wrong"
             )));
         }
         Ok(())
+    }
+
+    /// Pixel pairs of the last evaluation whose front pixel's triangle the line between the
+    /// two pixel centres misses (a triangle thinner than the rasterizer's sub-pixel grid
+    /// that owns a pixel centre it does not contain): no crossing to differentiate there.
+    pub fn missed_starts(&self) -> Result<u32> {
+        Ok(self
+            .work_count
+            .read_range::<u32>(0, WORK_COUNT_WORDS as usize)?[MISSED_STARTS])
     }
 
     /// Pixels listed next to a silhouette (or covered, with attributes) in the last

@@ -177,33 +177,51 @@ impl ViewModel<'_> {
         }
     }
 
-    /// The walk of `find_crossing` in `glsl/include/diff.glsl`. Panics when it reaches
-    /// `MAX_WALK` (the device reports that as an error).
+    /// The walk of `find_crossing` in `glsl/include/diff.glsl`: the first triangle's
+    /// exit by its crossing parameters, every later one by the side of the segment's line
+    /// its corner opposite the entry edge lies on. Panics when the walk reaches
+    /// `MAX_WALK` or the neighbour table does not match (the device reports both).
     fn find_crossing(&self, t: usize, pf: DVec2, pb: DVec2) -> Option<Crossing> {
+        let d = pb - pf;
+        let left_of_line = |c: DVec3| cross2(d, DVec2::new(c.x, c.y) - pf * c.z) >= 0.0;
         let mut current = t;
-        let mut previous = None;
-        let mut entry = f64::NEG_INFINITY;
+        let mut entry: Option<[usize; 2]> = None;
         for _ in 0..MAX_WALK {
             let tri = self.tri(current);
             let inside = Self::facing(&tri);
-            let mut exit: Option<(usize, f64)> = None;
-            for k in 0..3 {
-                let across = self.problem.neighbours[3 * current + k];
-                if previous.is_some_and(|p| across == p) {
-                    continue;
+            let left = tri.clip.map(left_of_line);
+            let edge = match entry {
+                None => {
+                    (0..3)
+                        .filter(|&k| left[(k + 1) % 3] != left[(k + 2) % 3])
+                        .map(|k| {
+                            let ef = Self::walk_edge_function(&tri, k, pf);
+                            let eb = Self::walk_edge_function(&tri, k, pb);
+                            (k, (ef - eb) * inside)
+                        })
+                        .max_by(|a, b| a.1.total_cmp(&b.1))?
+                        .0
                 }
-                let (ef, eb) = (
-                    Self::walk_edge_function(&tri, k, pf),
-                    Self::walk_edge_function(&tri, k, pb),
-                );
-                if (ef - eb) * inside > 0.0 && eb * inside < 0.0 {
-                    let a = ef / (ef - eb);
-                    if a >= entry && exit.is_none_or(|(_, best)| a < best) {
-                        exit = Some((k, a));
+                Some(entry) => {
+                    let on_entry = |k: usize| entry.contains(&tri.v[k]);
+                    let apex = (0..3).find(|&k| !on_entry(k));
+                    let apex = match apex {
+                        Some(a) if (0..3).filter(|&k| on_entry(k)).count() == 2 => a,
+                        _ => panic!("the neighbour table does not match triangle {current}"),
+                    };
+                    let (i, j) = ((apex + 1) % 3, (apex + 2) % 3);
+                    if left[i] != left[apex] {
+                        j
+                    } else {
+                        i
                     }
                 }
+            };
+            let ef = Self::walk_edge_function(&tri, edge, pf);
+            let eb = Self::walk_edge_function(&tri, edge, pb);
+            if eb * inside >= 0.0 {
+                return None;
             }
-            let (edge, alpha) = exit?;
             let next = self.problem.neighbours[3 * current + edge];
             let silhouette =
                 next == NO_NEIGHBOUR || Self::facing(&self.tri(next as usize)) != inside;
@@ -211,12 +229,11 @@ impl ViewModel<'_> {
                 return Some(Crossing {
                     triangle: current,
                     edge,
-                    alpha,
+                    alpha: ef / (ef - eb),
                 });
             }
-            previous = Some(current as u32);
+            entry = Some([tri.v[(edge + 1) % 3], tri.v[(edge + 2) % 3]]);
             current = next as usize;
-            entry = alpha;
         }
         panic!("the silhouette search crossed {MAX_WALK} triangles without an end");
     }

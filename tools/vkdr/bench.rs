@@ -184,6 +184,7 @@ pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
             plain_wall.push(plain_elapsed);
         }
         let result = scene.read()?;
+        let missed = scene.missed_starts()?;
         let loss = result.loss[0];
         // The gradients against central differences of re-rendered losses.
         let h = 0.002;
@@ -225,7 +226,7 @@ pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
             stretch_error,
         };
         eprintln!(
-            "      forward {:.3} ms, backward {:.3} ms, plain {:.3} ms, (forward + backward) / plain = {:.2}; wall {:.3} ms vs {:.3} ms; loss {loss:.5}; dL/dtz {:.4} vs {fd_tz:.4} (error {:.2}%), stretch {got_stretch:.4} vs {fd_stretch:.4} (error {:.2}%)",
+            "      forward {:.3} ms, backward {:.3} ms, plain {:.3} ms, (forward + backward) / plain = {:.2}; wall {:.3} ms vs {:.3} ms; loss {loss:.5}; dL/dtz {:.4} vs {fd_tz:.4} (error {:.2}%), stretch {got_stretch:.4} vs {fd_stretch:.4} (error {:.2}%); {missed} pixel pairs whose line misses the front triangle",
             row.forward_ms,
             row.backward_ms,
             row.plain_ms,
