@@ -46,6 +46,43 @@ const LOST_WALKS: usize = 4;
 /// As `CAMERA_MAX` and `ATTRIBUTE_MAX` in `glsl/include/diff_pass.glsl`.
 const CAMERA_MAX: u32 = 5;
 const ATTRIBUTE_MAX: u32 = 6;
+/// Timestamp slots [`Scene::record_passes`] needs.
+pub const PROFILE_SLOTS: u32 = 16;
+
+/// Where [`Scene::record_marked`] writes timestamps: the phase marks 0, 1, 2 (start,
+/// forward done, backward done), or one after every pass.
+struct Marks<'a> {
+    stamps: Option<&'a Timestamps>,
+    per_pass: bool,
+    names: Vec<&'static str>,
+}
+
+impl Marks<'_> {
+    fn start(&mut self, rec: &mut Recorder) {
+        if let Some(t) = self.stamps {
+            rec.reset_timestamps(t);
+            rec.timestamp(t, 0);
+        }
+    }
+
+    fn phase(&mut self, rec: &mut Recorder, slot: u32) {
+        match self.stamps {
+            Some(t) if !self.per_pass => rec.timestamp(t, slot),
+            _ => {}
+        }
+    }
+
+    fn pass(&mut self, rec: &mut Recorder, name: &'static str) {
+        match self.stamps {
+            Some(t) if self.per_pass => {
+                self.names.push(name);
+                rec.timestamp(t, self.names.len() as u32);
+            }
+            _ => {}
+        }
+    }
+}
+
 /// As `MISSED_STARTS` in `glsl/include/diff.glsl`.
 const MISSED_STARTS: usize = 7;
 /// As `TERMS_PER_LISTED` there.
@@ -586,10 +623,45 @@ impl Scene {
         rec: &mut Recorder,
         timing: Option<&Timestamps>,
     ) -> Result<()> {
-        if let Some(t) = timing {
-            rec.reset_timestamps(t);
-            rec.timestamp(t, 0);
+        let mut marks = Marks {
+            stamps: timing,
+            per_pass: false,
+            names: Vec::new(),
+        };
+        self.record_marked(renderer, rec, &mut marks)
+    }
+
+    /// As [`Scene::record`], with a timestamp before the first pass and after every pass
+    /// (a profile): returns the passes' names, pass k timed from slot k to slot k + 1.
+    /// `stamps` needs [`PROFILE_SLOTS`] slots.
+    pub fn record_passes(
+        &self,
+        renderer: &DiffRenderer,
+        rec: &mut Recorder,
+        stamps: &Timestamps,
+    ) -> Result<Vec<&'static str>> {
+        if stamps.count() < PROFILE_SLOTS {
+            return Err(Error::InvalidInput(format!(
+                "a profile needs {PROFILE_SLOTS} timestamps, not {}",
+                stamps.count()
+            )));
         }
+        let mut marks = Marks {
+            stamps: Some(stamps),
+            per_pass: true,
+            names: Vec::new(),
+        };
+        self.record_marked(renderer, rec, &mut marks)?;
+        Ok(marks.names)
+    }
+
+    fn record_marked(
+        &self,
+        renderer: &DiffRenderer,
+        rec: &mut Recorder,
+        marks: &mut Marks,
+    ) -> Result<()> {
+        marks.start(rec);
         // The listed pixels, dispatch arguments and largest terms; the lost-walk count
         // runs on.
         rec.fill_buffer_range(&self.work_count, 0, 4 * LOST_WALKS as u64, 0);
@@ -610,10 +682,13 @@ impl Scene {
         ] {
             rec.fill_buffer(buffer, 0);
         }
+        marks.pass(rec, "clear");
         self.record_lambert(renderer, rec, 0);
+        marks.pass(rec, "shading");
         renderer
             .rasterizer
             .draw(rec, &self.mesh, &self.views, &self.gbuffer)?;
+        marks.pass(rec, "G-buffer");
         // The passes below read ids from a buffer: plain loads are much cheaper than
         // storage-image loads on CPU drivers, and the copy is a memcpy.
         rec.transition(
@@ -623,6 +698,7 @@ impl Scene {
         );
         rec.copy_image_to_buffer(&self.gbuffer.ids, &self.ids)?;
         rec.memory_barrier();
+        marks.pass(rec, "id copy");
 
         let constants = PassConstants {
             channels: self.channels,
@@ -663,6 +739,7 @@ impl Scene {
             Groups::Count(w.div_ceil(8), h.div_ceil(8), n),
         );
         rec.memory_barrier();
+        marks.pass(rec, "classify");
 
         rec.run_compute(
             &renderer.work_args,
@@ -671,9 +748,11 @@ impl Scene {
             Groups::Count(1, 1, 1),
         );
         rec.memory_barrier();
+        marks.pass(rec, "work arguments");
 
         rec.run_compute(&renderer.antialias, &bindings, &constants, work);
         rec.memory_barrier();
+        marks.pass(rec, "antialias");
 
         rec.run_compute(
             &renderer.finalize,
@@ -690,9 +769,8 @@ impl Scene {
             Groups::Count(1, 1, n),
         );
         rec.memory_barrier();
-        if let Some(t) = timing {
-            rec.timestamp(t, 1);
-        }
+        marks.pass(rec, "loss");
+        marks.phase(rec, 1);
 
         // The backward twice: the largest terms first, then the fixed-point sums at the
         // scale they allow (glsl/include/fixed_point.glsl), resolved to floats.
@@ -700,6 +778,10 @@ impl Scene {
             let constants = PassConstants { stage, ..constants };
             rec.run_compute(&renderer.backward, &bindings, &constants, work);
             rec.memory_barrier();
+            marks.pass(
+                rec,
+                ["backward: largest terms", "backward: sums"][stage as usize],
+            );
         }
         let vertices = self.mesh.vertex_count();
         let mut resolve = |fixed: &Buffer, floats: &Buffer, count: u32, max_slot: u32| {
@@ -733,8 +815,10 @@ impl Scene {
             );
         }
         rec.memory_barrier();
+        marks.pass(rec, "resolve");
         self.record_lambert(renderer, rec, 1);
         self.record_lambert(renderer, rec, 2);
+        marks.pass(rec, "shading backward");
 
         let pose_bindings = [
             Binding::buffer(self.mesh.positions()),
@@ -760,9 +844,8 @@ impl Scene {
             rec.run_compute(&renderer.pose, &pose_bindings, &pose(stage as u32), groups);
             rec.memory_barrier();
         }
-        if let Some(t) = timing {
-            rec.timestamp(t, 2);
-        }
+        marks.pass(rec, "pose gradient");
+        marks.phase(rec, 2);
         Ok(())
     }
 

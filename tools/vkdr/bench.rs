@@ -37,6 +37,8 @@ pub struct Row {
     /// The same for the vertex gradients along a stretch of the mesh along its x axis
     /// (x (1 +- 0.003)): sum over vertices of dL/dx_v * x_v against re-rendered losses.
     pub stretch_error: f64,
+    /// Median GPU time of each pass of the forward and backward (a separate profiled run).
+    pub passes: Vec<(&'static str, f64)>,
 }
 
 /// The mesh stretched along its own x axis by 1 + `e`.
@@ -183,6 +185,35 @@ pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
             plain_ms.push(p[1] - p[0]);
             plain_wall.push(plain_elapsed);
         }
+        // A profile: the same evaluation with a timestamp after every pass.
+        let profile_stamps = Timestamps::new(ctx, vkdr::diff::PROFILE_SLOTS)?;
+        let mut rec = Recorder::new(ctx)?;
+        let names = scene.record_passes(&renderer, &mut rec, &profile_stamps)?;
+        let profiled = rec.finish()?;
+        let mut pass_ms = vec![Vec::new(); names.len()];
+        for repeat in 0..=args.repeats {
+            ctx.replay(&profiled)?;
+            let t = profile_stamps.read_first_ms(names.len() as u32 + 1)?;
+            if repeat > 0 {
+                for (k, times) in pass_ms.iter_mut().enumerate() {
+                    times.push(t[k + 1] - t[k]);
+                }
+            }
+        }
+        let passes: Vec<(&'static str, f64)> = names
+            .into_iter()
+            .zip(pass_ms)
+            .map(|(name, times)| (name, median(times)))
+            .collect();
+        eprintln!(
+            "      passes: {}",
+            passes
+                .iter()
+                .map(|(name, ms)| format!("{name} {ms:.3}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+
         let result = scene.read()?;
         let missed = scene.missed_starts()?;
         let loss = result.loss[0];
@@ -224,6 +255,7 @@ pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
             plain_wall_ms: median(plain_wall),
             dtz_error,
             stretch_error,
+            passes,
         };
         eprintln!(
             "      forward {:.3} ms, backward {:.3} ms, plain {:.3} ms, (forward + backward) / plain = {:.2}; wall {:.3} ms vs {:.3} ms; loss {loss:.5}; dL/dtz {:.4} vs {fd_tz:.4} (error {:.2}%), stretch {got_stretch:.4} vs {fd_stretch:.4} (error {:.2}%); {missed} pixel pairs whose line misses the front triangle",
@@ -260,8 +292,20 @@ pub fn write(out: &Path, rows: &[Row], (width, height): (u32, u32), device: &str
             r.dtz_error,
             r.stretch_error
         ));
+        let passes = r
+            .passes
+            .iter()
+            .map(|(name, ms)| format!("{name:?}: {ms:.4}"))
+            .collect::<Vec<_>>()
+            .join(", ");
+        let passes = r
+            .passes
+            .iter()
+            .map(|(name, ms)| format!("{name:?}: {ms:.4}"))
+            .collect::<Vec<_>>()
+            .join(", ");
         json.push(format!(
-            "  {{\"vertices\": {}, \"faces\": {}, \"width\": {width}, \"height\": {height}, \"forward_ms\": {:.4}, \"backward_ms\": {:.4}, \"plain_ms\": {:.4}, \"wall_ms\": {:.4}, \"plain_wall_ms\": {:.4}, \"dtz_error\": {:.5}, \"stretch_error\": {:.5}, \"device\": {:?}}}",
+            "  {{\"vertices\": {}, \"faces\": {}, \"width\": {width}, \"height\": {height}, \"forward_ms\": {:.4}, \"backward_ms\": {:.4}, \"plain_ms\": {:.4}, \"wall_ms\": {:.4}, \"plain_wall_ms\": {:.4}, \"dtz_error\": {:.5}, \"stretch_error\": {:.5}, \"device\": {:?}, \"pass_ms\": {{{passes}}}}}",
             r.vertices, r.faces, r.forward_ms, r.backward_ms, r.plain_ms, r.wall_ms, r.plain_wall_ms, r.dtz_error, r.stretch_error, device
         ));
     }
