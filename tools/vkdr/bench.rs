@@ -298,12 +298,6 @@ pub fn write(out: &Path, rows: &[Row], (width, height): (u32, u32), device: &str
             .map(|(name, ms)| format!("{name:?}: {ms:.4}"))
             .collect::<Vec<_>>()
             .join(", ");
-        let passes = r
-            .passes
-            .iter()
-            .map(|(name, ms)| format!("{name:?}: {ms:.4}"))
-            .collect::<Vec<_>>()
-            .join(", ");
         json.push(format!(
             "  {{\"vertices\": {}, \"faces\": {}, \"width\": {width}, \"height\": {height}, \"forward_ms\": {:.4}, \"backward_ms\": {:.4}, \"plain_ms\": {:.4}, \"wall_ms\": {:.4}, \"plain_wall_ms\": {:.4}, \"dtz_error\": {:.5}, \"stretch_error\": {:.5}, \"device\": {:?}, \"pass_ms\": {{{passes}}}}}",
             r.vertices, r.faces, r.forward_ms, r.backward_ms, r.plain_ms, r.wall_ms, r.plain_wall_ms, r.dtz_error, r.stretch_error, device
