@@ -77,6 +77,15 @@ fn check_views(mesh: &Mesh, views: &[View]) -> Vec<Compared> {
     let gpu = rasterizer
         .render(&ctx, mesh, views, Outputs::IdsBaryDepth)
         .expect("render");
+    // The ids-only pass (one indexed draw, ids from gl_PrimitiveID) covers exactly the
+    // same pixels with the same triangles as the non-indexed one.
+    let ids_only = rasterizer
+        .render(&ctx, mesh, views, Outputs::Ids)
+        .expect("render ids");
+    assert!(
+        ids_only.ids == gpu.ids,
+        "ids-only and full G-buffer ids differ"
+    );
     let seen = views
         .iter()
         .enumerate()

@@ -18,7 +18,10 @@ use crate::mesh::Mesh;
 
 const GBUFFER_VERT: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/gbuffer.vert.spv"));
 const GBUFFER_FRAG: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/gbuffer.frag.spv"));
-const GBUFFER_IDS_FRAG: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/gbuffer_ids.frag.spv"));
+const GBUFFER_INDEXED_VERT: &[u8] =
+    include_bytes!(concat!(env!("OUT_DIR"), "/gbuffer_indexed.vert.spv"));
+const GBUFFER_INDEXED_IDS_FRAG: &[u8] =
+    include_bytes!(concat!(env!("OUT_DIR"), "/gbuffer_indexed_ids.frag.spv"));
 const GBUFFER_DEPTH_FRAG: &[u8] =
     include_bytes!(concat!(env!("OUT_DIR"), "/gbuffer_depth.frag.spv"));
 const SHADED_VERT: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/shaded.vert.spv"));
@@ -389,7 +392,18 @@ impl Rasterizer {
                 },
             )
         };
-        let gbuffer_ids = gbuffer_pipeline("gbuffer ids", GBUFFER_IDS_FRAG, &[Format::R32Uint])?;
+        let gbuffer_ids = GraphicsPipeline::new(
+            ctx,
+            &GraphicsPipelineDesc {
+                name: "gbuffer ids",
+                vertex: &spirv(GBUFFER_INDEXED_VERT)?,
+                fragment: &spirv(GBUFFER_INDEXED_IDS_FRAG)?,
+                bindings: &[BindingKind::StorageBuffer; 2],
+                push_constant_bytes: 4,
+                color_formats: &[Format::R32Uint],
+                depth_format: Some(Format::D32Float),
+            },
+        )?;
         let gbuffer = gbuffer_pipeline(
             "gbuffer",
             GBUFFER_FRAG,
@@ -426,8 +440,11 @@ impl Rasterizer {
         })
     }
 
-    /// Records the G-buffer pass for every view (view k into layer k).
-    /// The images end in [`ImageState::Attachment`].
+    /// Records the G-buffer pass for every view (view k into layer k). Ids alone (the
+    /// differentiable passes' input) come from one indexed draw, the id from
+    /// `gl_PrimitiveID`; barycentrics and depth from non-indexed draws whose vertex k of
+    /// triangle t carries the id and a unit barycentric vector (in chunks whose index
+    /// range fits `maxStorageBufferRange`). The images end in [`ImageState::Attachment`].
     pub fn draw(
         &self,
         rec: &mut Recorder,
@@ -467,6 +484,19 @@ impl Rasterizer {
                 depth: Some((&target.depth_test, layer, 0.0)),
             })?;
             rec.bind_graphics(pipeline);
+            if target.outputs == Outputs::Ids {
+                rec.push_graphics_bindings(
+                    pipeline,
+                    &[
+                        Binding::buffer(&mesh.positions),
+                        Binding::buffer(&views.views),
+                    ],
+                );
+                rec.graphics_constants(pipeline, &layer);
+                rec.draw_indexed(&mesh.triangles, 0, 3 * mesh.triangle_count);
+                rec.end_rendering();
+                continue;
+            }
             let mut first = 0u32;
             while first < mesh.triangle_count {
                 let count = self.chunk_triangles.min(mesh.triangle_count - first);

@@ -32,6 +32,9 @@ pub struct Row {
     pub plain_ms: f64,
     pub wall_ms: f64,
     pub plain_wall_ms: f64,
+    /// Median over repeats of (forward + backward) / plain, each repeat's pair timed one
+    /// after the other (steadier than a ratio of medians on a shared machine).
+    pub ratio: f64,
     /// |dL/dtz - central difference| / |central difference|, tz +- 2 mm, re-rendered.
     pub dtz_error: f64,
     /// The same for the vertex gradients along a stretch of the mesh along its x axis
@@ -165,8 +168,8 @@ pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
         rec.timestamp(&plain_stamps, 1);
         let plain = rec.finish()?;
 
-        let (mut forward, mut backward, mut plain_ms, mut wall, mut plain_wall) =
-            (vec![], vec![], vec![], vec![], vec![]);
+        let (mut forward, mut backward, mut plain_ms, mut wall, mut plain_wall, mut ratio) =
+            (vec![], vec![], vec![], vec![], vec![], vec![]);
         for repeat in 0..=args.repeats {
             let started = Instant::now();
             ctx.replay(&iteration)?;
@@ -184,6 +187,7 @@ pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
             wall.push(elapsed);
             plain_ms.push(p[1] - p[0]);
             plain_wall.push(plain_elapsed);
+            ratio.push((t[2] - t[0]) / (p[1] - p[0]));
         }
         // A profile: the same evaluation with a timestamp after every pass.
         let profile_stamps = Timestamps::new(ctx, vkdr::diff::PROFILE_SLOTS)?;
@@ -253,6 +257,7 @@ pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
             plain_ms: median(plain_ms),
             wall_ms: median(wall),
             plain_wall_ms: median(plain_wall),
+            ratio: median(ratio),
             dtz_error,
             stretch_error,
             passes,
@@ -262,7 +267,7 @@ pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
             row.forward_ms,
             row.backward_ms,
             row.plain_ms,
-            (row.forward_ms + row.backward_ms) / row.plain_ms,
+            row.ratio,
             row.wall_ms,
             row.plain_wall_ms,
             result.pose_gradient[0][2],

@@ -488,7 +488,7 @@ fn bench(size: &str, repeats: usize, max_vertices: usize, loss: &str, out: &Path
             r.forward_ms,
             r.backward_ms,
             r.plain_ms,
-            (r.forward_ms + r.backward_ms) / r.plain_ms,
+            r.ratio,
             r.dtz_error,
             r.stretch_error
         );
