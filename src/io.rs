@@ -29,6 +29,55 @@ where
     write_atomically(path, &bytes)
 }
 
+/// Checks that an `.npy` file's header does not claim more data than the file holds, so
+/// that a reader never allocates for a lying header (a 200-byte file claiming 1e12 x 3
+/// floats aborted the process). `name` is used in the error.
+pub fn check_npy_size(name: &str, bytes: &[u8]) -> Result<()> {
+    let bad = |why: String| Error::InvalidInput(format!("{name}: {why}"));
+    if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
+        return Err(bad("not an .npy file (no \\x93NUMPY magic)".into()));
+    }
+    let (length, start): (usize, usize) = match bytes[6] {
+        1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
+        _ if bytes.len() >= 12 => (
+            u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize,
+            12,
+        ),
+        _ => return Err(bad("truncated .npy header".into())),
+    };
+    let header = bytes
+        .get(start..start.saturating_add(length))
+        .ok_or_else(|| bad("truncated .npy header".into()))?;
+    let header = String::from_utf8_lossy(header);
+    let field = |key: &str| {
+        let at = header.find(key)? + key.len();
+        let rest = header[at..].trim_start().strip_prefix(':')?.trim_start();
+        Some(rest.to_string())
+    };
+    let element_bytes: u64 = field("'descr'")
+        .and_then(|d| d.get(3..4).and_then(|n| n.parse().ok()))
+        .ok_or_else(|| bad("no element type in the .npy header".into()))?;
+    let shape = field("'shape'")
+        .and_then(|s| Some(s.strip_prefix('(')?.split(')').next()?.to_string()))
+        .ok_or_else(|| bad("no shape in the .npy header".into()))?;
+    let mut count = 1u64;
+    for dim in shape.split(',').map(str::trim).filter(|d| !d.is_empty()) {
+        let dim: u64 = dim
+            .parse()
+            .map_err(|_| bad(format!("shape ({shape}) is not a list of sizes")))?;
+        count = count.saturating_mul(dim);
+    }
+    let declared = count.saturating_mul(element_bytes);
+    let held = (bytes.len() - start - length) as u64;
+    if declared > held {
+        return Err(bad(format!(
+            "the header declares shape ({shape}), {declared} bytes of data, but the file \
+             holds {held}"
+        )));
+    }
+    Ok(())
+}
+
 /// Writes an RGB(A) or grey image as PNG.
 pub fn write_png(path: &Path, image: &image::DynamicImage) -> Result<()> {
     let mut bytes = Vec::new();
@@ -39,4 +88,36 @@ pub fn write_png(path: &Path, image: &image::DynamicImage) -> Result<()> {
         )
         .map_err(|e| Error::format(path, e.to_string()))?;
     write_atomically(path, &bytes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::check_npy_size;
+
+    fn npy(array: &ndarray::Array2<f32>) -> Vec<u8> {
+        let mut bytes = Vec::new();
+        ndarray_npy::WriteNpyExt::write_npy(array, &mut bytes).unwrap();
+        bytes
+    }
+
+    #[test]
+    fn an_honest_npy_passes() {
+        let bytes = npy(&ndarray::Array2::zeros((5, 3)));
+        check_npy_size("points.npy", &bytes).unwrap();
+    }
+
+    #[test]
+    fn a_header_claiming_more_than_the_file_holds_is_refused() {
+        let honest = npy(&ndarray::Array2::zeros((5, 3)));
+        // The header with a different shape (its length changes; the check only needs the
+        // declared size against the bytes after it).
+        let at = honest.windows(6).position(|w| w == b"(5, 3)").unwrap();
+        let lying = [&honest[..at], b"(999999999999, 3)", &honest[at + 6..]].concat();
+        let error = check_npy_size("points.npy", &lying)
+            .unwrap_err()
+            .to_string();
+        assert!(error.contains("999999999999"), "{error}");
+        assert!(check_npy_size("x.npy", b"not numpy at all").is_err());
+        assert!(check_npy_size("x.npy", b"").is_err());
+    }
 }

@@ -428,6 +428,51 @@ struct LambertBuffers {
     ambient: f32,
 }
 
+/// Refuses a scene whose per-pixel or per-vertex buffers the device could not address
+/// (they are bound whole): `n` views of `w` x `h` compared in `image_channels` channels,
+/// `vertices` vertices with `channels` interpolated channels. Callers can check before
+/// they allocate images of that size; [`Scene::new`] checks again.
+pub fn check_scene_fits(
+    ctx: &Context,
+    (w, h, n): (u32, u32, u32),
+    image_channels: u64,
+    vertices: u64,
+    channels: u32,
+) -> Result<()> {
+    let range = ctx.info().max_storage_buffer_range as u64;
+    let product = |factors: &[u64]| factors.iter().fold(1u64, |a, &b| a.saturating_mul(b));
+    let (w64, h64, n64) = (w as u64, h as u64, n as u64);
+    let per_vertex = format!("{vertices} vertices in {n} view(s)");
+    let largest = [
+        (
+            format!("the compared image of {n} view(s) of {w} x {h}"),
+            product(&[w64, h64, n64, image_channels, 4]),
+            "a smaller image or fewer views",
+        ),
+        (
+            format!("the camera-space vertex gradients of {per_vertex}"),
+            product(&[n64, vertices, 24]),
+            "a smaller mesh or fewer views",
+        ),
+        (
+            format!("the attribute gradients of {per_vertex}"),
+            product(&[n64, vertices, channels as u64, 8]),
+            "a smaller mesh, fewer channels or fewer views",
+        ),
+    ];
+    for (what, bytes, hint) in largest {
+        if bytes > range {
+            return Err(Error::Limit(format!(
+                "{what} need {bytes} bytes ({:.1} MiB) in one buffer, more than the \
+                 device's maxStorageBufferRange of {range} bytes ({:.1} MiB); use {hint}",
+                bytes as f64 / 1048576.0,
+                range as f64 / 1048576.0
+            )));
+        }
+    }
+    Ok(())
+}
+
 impl Scene {
     pub fn new(ctx: &Context, desc: &SceneDesc) -> Result<Self> {
         let mesh = MeshBuffers::new(ctx, desc.mesh)?;
@@ -504,31 +549,7 @@ impl Scene {
                 "observed images contain NaN or Inf".into(),
             ));
         }
-        // Per-pixel and per-vertex buffers are bound whole: refuse before allocating what
-        // the device could not address.
-        let range = ctx.info().max_storage_buffer_range as u64;
-        let largest = [
-            ("the compared image", pixels * image_channels * 4),
-            (
-                "the camera-space vertex gradients",
-                n as u64 * vertices * 24,
-            ),
-            (
-                "the attribute gradients",
-                n as u64 * vertices * channels as u64 * 8,
-            ),
-        ];
-        for (what, bytes) in largest {
-            if bytes > range {
-                return Err(Error::Limit(format!(
-                    "{what} of {n} view(s) of {w} x {h} need {bytes} bytes ({:.1} MiB) in one \
-                     buffer, more than the device's maxStorageBufferRange of {range} bytes \
-                     ({:.1} MiB); use a smaller image or fewer views",
-                    bytes as f64 / 1048576.0,
-                    range as f64 / 1048576.0
-                )));
-            }
-        }
+        check_scene_fits(ctx, (w, h, n), image_channels, vertices, channels)?;
         let device = |name, bytes| Buffer::new(ctx, name, bytes, BufferKind::Device);
         let with_distance = desc.loss == Loss::Distance;
         // One partial loss sum per subgroup of every 8 x 8 workgroup.

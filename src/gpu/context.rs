@@ -13,6 +13,28 @@ use crate::error::{Error, Result};
 
 const VALIDATION_LAYER: &CStr = c"VK_LAYER_KHRONOS_validation";
 
+/// The wait for one submission unless `VKDR_FENCE_TIMEOUT_S` says otherwise.
+const DEFAULT_FENCE_TIMEOUT: Duration = Duration::from_secs(300);
+
+/// `VKDR_FENCE_TIMEOUT_S`: `None` when unset, an error unless it is a positive number of
+/// seconds a `Duration` holds.
+fn fence_timeout_from_env() -> Result<Option<Duration>> {
+    let Ok(text) = std::env::var("VKDR_FENCE_TIMEOUT_S") else {
+        return Ok(None);
+    };
+    text.trim()
+        .parse::<f64>()
+        .ok()
+        .filter(|s| *s > 0.0)
+        .and_then(|s| Duration::try_from_secs_f64(s).ok())
+        .map(Some)
+        .ok_or_else(|| {
+            Error::InvalidInput(format!(
+                "VKDR_FENCE_TIMEOUT_S='{text}' is not a positive number of seconds"
+            ))
+        })
+}
+
 /// How to create a [`Context`].
 #[derive(Clone, Debug)]
 pub struct ContextOptions {
@@ -30,10 +52,11 @@ pub struct ContextOptions {
 impl Default for ContextOptions {
     fn default() -> Self {
         let validation = std::env::var("VKDR_VALIDATION").is_ok_and(|v| v == "1");
-        let fence_timeout = std::env::var("VKDR_FENCE_TIMEOUT_S")
+        // An invalid value is refused by `Context::new`; here it leaves the default.
+        let fence_timeout = fence_timeout_from_env()
             .ok()
-            .and_then(|s| s.parse::<f64>().ok())
-            .map_or(Duration::from_secs(300), Duration::from_secs_f64);
+            .flatten()
+            .unwrap_or(DEFAULT_FENCE_TIMEOUT);
         Self {
             validation,
             device: std::env::var("VKDR_DEVICE").ok(),
@@ -90,8 +113,10 @@ struct FeatureSupport {
 }
 
 impl Context {
-    /// Creates a context with options from the environment (`VKDR_VALIDATION`, `VKDR_DEVICE`).
+    /// Creates a context with options from the environment (`VKDR_VALIDATION`,
+    /// `VKDR_DEVICE`, `VKDR_FENCE_TIMEOUT_S`; an invalid timeout is an error).
     pub fn new() -> Result<Self> {
+        fence_timeout_from_env()?;
         Self::with_options(ContextOptions::default())
     }
 

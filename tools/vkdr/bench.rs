@@ -103,8 +103,10 @@ pub fn median(mut values: Vec<f64>) -> f64 {
 }
 
 pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
-    let renderer = DiffRenderer::new(ctx)?;
     let (width, height) = args.size;
+    // Before the observed mask is allocated at that size.
+    vkdr::diff::check_scene_fits(ctx, (width, height, 1), 1, args.max_vertices as u64, 0)?;
+    let renderer = DiffRenderer::new(ctx)?;
     let camera = Camera::centered(2.0 * width.max(height) as f64, width, height)?;
     let view = View {
         camera,

@@ -71,6 +71,14 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
     // The category: a subdivided canonical, 10 training instances, one test instance.
     let mut rng = Rng::new(args.seed);
     let mut canonical = instance(&args.category, &mut rng)?;
+    // Each subdivision has 4 times the triangles and about 4 times the vertices: refuse
+    // what the device could not hold before building it.
+    let vertices = 4u64
+        .checked_pow(args.subdivide)
+        .and_then(|f| f.checked_mul(canonical.vertex_count() as u64))
+        .unwrap_or(u64::MAX);
+    vkdr::diff::check_scene_fits(ctx, (width, height, 1), 1, vertices, 0)
+        .with_context(|| format!("--subdivide {}", args.subdivide))?;
     for _ in 0..args.subdivide {
         canonical = canonical.subdivided();
     }

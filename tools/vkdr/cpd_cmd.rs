@@ -21,6 +21,7 @@ pub fn load_points(path: &Path) -> Result<Vec<DVec3>> {
     }
     use ndarray_npy::ReadNpyExt;
     let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    vkdr::io::check_npy_size(&path.display().to_string(), &bytes)?;
     let array: Array2<f64> = match Array2::<f64>::read_npy(&bytes[..]) {
         Ok(a) => a,
         Err(_) => Array2::<f32>::read_npy(&bytes[..])

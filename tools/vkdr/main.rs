@@ -394,8 +394,12 @@ fn info() -> Result<()> {
         d.api_version, d.driver_name, d.driver_info
     );
     println!("  features:");
+    let width = d.features.iter().map(|(n, _)| n.len()).max().unwrap_or(0);
     for (name, has) in &d.features {
-        println!("    {:<48} {}", name, if *has { "yes" } else { "MISSING" });
+        println!(
+            "    {name:<width$}  {}",
+            if *has { "yes" } else { "MISSING" }
+        );
     }
     println!("  limits:");
     println!(
