@@ -21,6 +21,7 @@ use vkdr::{Camera, Mesh, Pose};
 
 const TOLERANCE: f64 = 1e-2;
 
+#[derive(Clone)]
 struct Case {
     mesh: Mesh,
     views: Vec<View>,
@@ -75,12 +76,11 @@ fn check_subset(case: &Case) -> (Report, Evaluation) {
     check_vertices(case, true)
 }
 
-fn check_vertices(case: &Case, subset: bool) -> (Report, Evaluation) {
-    let ctx = common::context();
-    let renderer = DiffRenderer::new(&ctx).expect("diff renderer");
+/// The case's scene on the device.
+fn device_scene(ctx: &vkdr::gpu::Context, case: &Case) -> Scene {
     let attributes = case.attributes.as_ref().map(|(a, c)| (a.as_slice(), *c));
-    let mut scene = Scene::new(
-        &ctx,
+    Scene::new(
+        ctx,
         &SceneDesc {
             mesh: &case.mesh,
             views: &case.views,
@@ -90,7 +90,13 @@ fn check_vertices(case: &Case, subset: bool) -> (Report, Evaluation) {
             shading: case.shading,
         },
     )
-    .expect("scene");
+    .expect("scene")
+}
+
+fn check_vertices(case: &Case, subset: bool) -> (Report, Evaluation) {
+    let ctx = common::context();
+    let renderer = DiffRenderer::new(&ctx).expect("diff renderer");
+    let mut scene = device_scene(&ctx, case);
     let gpu = scene.evaluate(&ctx, &renderer).expect("evaluate");
     let distance: Vec<f64> = if case.loss == Loss::Distance {
         scene
@@ -512,18 +518,7 @@ fn several_views_in_one_submission() {
 fn surface_quantities(case: &Case) -> (f64, Vec<f64>, f64) {
     let ctx = common::context();
     let renderer = DiffRenderer::new(&ctx).expect("diff renderer");
-    let mut scene = Scene::new(
-        &ctx,
-        &SceneDesc {
-            mesh: &case.mesh,
-            views: &case.views,
-            loss: case.loss,
-            observed: &case.observed,
-            attributes: None,
-            shading: None,
-        },
-    )
-    .expect("scene");
+    let mut scene = device_scene(&ctx, case);
     let gpu = scene.evaluate(&ctx, &renderer).expect("evaluate");
     common::assert_no_validation_errors(&ctx);
     let loss = gpu.loss.iter().map(|&l| l as f64).sum();
@@ -671,30 +666,20 @@ fn images_past_the_storage_buffer_range_are_refused() {
 fn errors_against_re_rendered(case: &Case, h: f64, e: f32) -> (f64, f64) {
     let (_, pose, stretch) = surface_quantities(case);
     let moved = |dz: f64| {
-        let mut c = Case {
-            mesh: case.mesh.clone(),
-            views: case.views.clone(),
-            ..sphere_case(case.loss, 0.1, 0.45, 1)
-        };
-        c.observed = case.observed.clone();
+        let mut c = case.clone();
         c.views[0].pose.translation.z += dz;
         surface_quantities(&c).0
     };
     let fd_tz = (moved(h) - moved(-h)) / (2.0 * h);
     let stretched = |e: f32| {
+        let mut c = case.clone();
         let positions = case
             .mesh
             .positions()
             .iter()
             .map(|&[x, y, z]| [x * (1.0 + e), y, z])
             .collect();
-        let mesh = Mesh::new(positions, case.mesh.triangles().to_vec()).unwrap();
-        let mut c = Case {
-            mesh,
-            views: case.views.clone(),
-            ..sphere_case(case.loss, 0.1, 0.45, 1)
-        };
-        c.observed = case.observed.clone();
+        c.mesh = Mesh::new(positions, case.mesh.triangles().to_vec()).unwrap();
         surface_quantities(&c).0
     };
     let fd_stretch = (stretched(e) - stretched(-e)) / (2.0 * e as f64);

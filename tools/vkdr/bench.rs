@@ -8,7 +8,9 @@ use std::time::Instant;
 
 use anyhow::{Context as _, Result};
 
-use vkdr::diff::{DiffRenderer, Scene, SceneDesc};
+use vkdr::diff::DiffRenderer;
+
+use crate::grad::mask_scene;
 use vkdr::gpu::{Context, Recorder, Timestamps};
 use vkdr::loss::Loss;
 use vkdr::plot::{Plot, PALETTE};
@@ -64,17 +66,7 @@ fn loss_of(
     mask: &[f32],
     loss: Loss,
 ) -> Result<f64> {
-    let mut scene = Scene::new(
-        ctx,
-        &SceneDesc {
-            mesh,
-            views: &[view],
-            loss,
-            observed: mask,
-            attributes: None,
-            shading: None,
-        },
-    )?;
+    let mut scene = mask_scene(ctx, mesh, view, mask, loss)?;
     Ok(scene.evaluate(ctx, renderer)?.loss[0] as f64)
 }
 
@@ -104,8 +96,13 @@ pub fn median(mut values: Vec<f64>) -> f64 {
 
 pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
     let (width, height) = args.size;
+    let counts: Vec<usize> = [1_000, 10_000, 100_000, 1_000_000]
+        .into_iter()
+        .filter(|&v| v <= args.max_vertices)
+        .collect();
     // Before the observed mask is allocated at that size.
-    vkdr::diff::check_scene_fits(ctx, (width, height, 1), 1, args.max_vertices as u64, 0)?;
+    let largest = counts.last().copied().unwrap_or(0) as u64;
+    vkdr::diff::check_scene_fits(ctx, (width, height, 1), 1, largest, 0)?;
     let renderer = DiffRenderer::new(ctx)?;
     let camera = Camera::centered(2.0 * width.max(height) as f64, width, height)?;
     let view = View {
@@ -124,10 +121,6 @@ pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
             }
         })
         .collect();
-    let counts: Vec<usize> = [1_000, 10_000, 100_000, 1_000_000]
-        .into_iter()
-        .filter(|&v| v <= args.max_vertices)
-        .collect();
     let mut rows = Vec::new();
     for (k, &target) in counts.iter().enumerate() {
         let mesh = sphere(target);
@@ -139,17 +132,7 @@ pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
             mesh.triangle_count(),
             args.repeats
         );
-        let mut scene = Scene::new(
-            ctx,
-            &SceneDesc {
-                mesh: &mesh,
-                views: &[view],
-                loss: args.loss,
-                observed: &mask,
-                attributes: None,
-                shading: None,
-            },
-        )?;
+        let mut scene = mask_scene(ctx, &mesh, view, &mask, args.loss)?;
         let stamps = Timestamps::new(ctx, 3)?;
         let mut rec = Recorder::new(ctx)?;
         scene.record_prepare(&renderer, &mut rec)?;

@@ -14,6 +14,27 @@ use vkdr::loss::{load_mask, Loss};
 use vkdr::raster::View;
 use vkdr::Mesh;
 
+/// One view of `mesh` compared with `mask` (coverage, no attributes or shading).
+pub fn mask_scene(
+    ctx: &Context,
+    mesh: &Mesh,
+    view: View,
+    mask: &[f32],
+    loss: Loss,
+) -> vkdr::Result<Scene> {
+    Scene::new(
+        ctx,
+        &SceneDesc {
+            mesh,
+            views: &[view],
+            loss,
+            observed: mask,
+            attributes: None,
+            shading: None,
+        },
+    )
+}
+
 pub fn run(
     ctx: &Context,
     mesh: &Mesh,
@@ -25,17 +46,7 @@ pub fn run(
     let (w, h) = (view.camera.width, view.camera.height);
     let mask = load_mask(observed, w, h)?;
     let renderer = DiffRenderer::new(ctx)?;
-    let mut scene = Scene::new(
-        ctx,
-        &SceneDesc {
-            mesh,
-            views: &[view],
-            loss,
-            observed: &mask,
-            attributes: None,
-            shading: None,
-        },
-    )?;
+    let mut scene = mask_scene(ctx, mesh, view, &mask, loss)?;
     let result = scene.evaluate(ctx, &renderer)?;
 
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
