@@ -292,7 +292,7 @@ impl DiffRenderer {
                 "work arguments",
                 &spirv(WORK_ARGS)?,
                 &bindings[..1],
-                0,
+                4,
             )?,
             antialias: ComputePipeline::new(
                 ctx,
@@ -394,6 +394,8 @@ pub struct Scene {
     grad_pose: Buffer,
     pose_partials: Buffer,
     pose_groups: u32,
+    /// [`DeviceInfo::grid_groups`](crate::gpu::DeviceInfo::grid_groups).
+    grid_groups: u32,
     /// Subgroups per 64-wide workgroup.
     subgroups: u32,
     ids: Buffer,
@@ -556,7 +558,10 @@ impl Scene {
         let subgroups = 64u32.div_ceil(ctx.info().subgroup_size.max(1));
         let partial_slots = w.div_ceil(8) * h.div_ceil(8) * subgroups;
         let stats_shift = stats_shift(desc, w, h);
-        let pose_groups = (vertices as u32).div_ceil(64).clamp(1, POSE_GROUPS);
+        let grid_groups = ctx.info().grid_groups.max(1);
+        let pose_groups = (vertices as u32)
+            .div_ceil(64)
+            .clamp(1, POSE_GROUPS.min(grid_groups));
         Ok(Self {
             gbuffer: Gbuffer::new(ctx, w, h, n, Outputs::Ids)?,
             neighbours: Buffer::from_slice(ctx, "neighbours", &neighbours(desc.mesh))?,
@@ -598,6 +603,7 @@ impl Scene {
                 n as u64 * pose_groups as u64 * subgroups as u64 * 24,
             )?,
             pose_groups,
+            grid_groups,
             subgroups,
             ids: device("triangle ids", pixels * 4)?,
             mesh,
@@ -765,7 +771,7 @@ impl Scene {
         rec.run_compute(
             &renderer.work_args,
             &[Binding::buffer(&self.work_count)],
-            &(),
+            &self.grid_groups,
             Groups::Count(1, 1, 1),
         );
         rec.memory_barrier();
@@ -818,7 +824,7 @@ impl Scene {
                     max_slot,
                     terms_per_listed: TERMS_PER_LISTED,
                 },
-                Groups::Count(count.div_ceil(64).clamp(1, 4096), 1, 1),
+                Groups::Count(count.div_ceil(64).clamp(1, self.grid_groups), 1, 1),
             );
         };
         resolve(
@@ -857,7 +863,7 @@ impl Scene {
             subgroups: self.subgroups,
         };
         let per_stage = [
-            Groups::Count(vertices.div_ceil(64).clamp(1, 4096), 1, 1),
+            Groups::Count(vertices.div_ceil(64).clamp(1, self.grid_groups), 1, 1),
             Groups::Count(self.pose_groups, 1, n),
             Groups::Count(1, 1, n),
         ];

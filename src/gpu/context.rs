@@ -82,6 +82,12 @@ pub struct DeviceInfo {
     pub max_compute_workgroup_count: [u32; 3],
     pub max_push_constants_size: u32,
     pub subgroup_size: u32,
+    /// Workgroups of 64 invocations that a grid-stride pass (one that loops over its
+    /// items with the grid's size as stride) is dispatched with at most: enough to fill a
+    /// GPU, and a few per core on a CPU driver, where every invocation pays again for what
+    /// it loads before its loop (at 1e5 vertices the pose pass took 9 ms on lavapipe
+    /// with 4096 workgroups, about 1 ms with 32).
+    pub grid_groups: u32,
     pub timestamp_period_ns: f32,
     pub features: Vec<(&'static str, bool)>,
 }
@@ -457,6 +463,15 @@ fn type_rank(kind: vk::PhysicalDeviceType) -> u32 {
     }
 }
 
+fn grid_groups(kind: vk::PhysicalDeviceType) -> u32 {
+    if kind == vk::PhysicalDeviceType::CPU {
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        (16 * cores).clamp(16, 1024) as u32
+    } else {
+        4096
+    }
+}
+
 fn type_name(kind: vk::PhysicalDeviceType) -> &'static str {
     match kind {
         vk::PhysicalDeviceType::DISCRETE_GPU => "discrete GPU",
@@ -583,6 +598,7 @@ fn describe(instance: &ash::Instance, pd: vk::PhysicalDevice, index: usize) -> D
             max_compute_workgroup_count: limits.max_compute_work_group_count,
             max_push_constants_size: limits.max_push_constants_size,
             subgroup_size: subgroup.subgroup_size,
+            grid_groups: grid_groups(props.device_type),
             timestamp_period_ns: limits.timestamp_period,
             features: query_features(instance, pd).features,
         }

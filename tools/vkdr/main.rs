@@ -430,6 +430,10 @@ fn info() -> Result<()> {
         "    timestampPeriod                 {} ns",
         d.timestamp_period_ns
     );
+    println!(
+        "  grid-stride passes use at most {} workgroups of 64 ({} device; subgroups of {})",
+        d.grid_groups, d.kind, d.subgroup_size
+    );
     Ok(())
 }
 
