@@ -37,7 +37,7 @@ void main() {
         uint view = view_of(index);
         vec4 a = antialiased_value(view, pixel_of(index), size, ids[index]);
         store_antialiased(index, a);
-        vec3 terms = loss_terms(index, a);
+        vec3 terms = loss_excess(index, a);
         for (int k = 0; k < 3; ++k) {
             if (terms[k] != 0.0) atomicAdd(stats_fixed[3u * view + uint(k)], to_fixed(terms[k], pc.stats_shift));
         }

@@ -30,6 +30,7 @@ layout(set = 0, binding = 14, std430) buffer WorkCount { uint work_count[]; };  
 layout(set = 0, binding = 15, std430) buffer StatsFixed { int64_t stats_fixed[]; };    // [view][3], fixed point at pc.stats_shift
 layout(set = 0, binding = 16, std430) buffer GradCameraFixed { int64_t grad_camera_fixed[]; };  // [view][vertex][3]
 layout(set = 0, binding = 17, std430) buffer GradAttributesFixed { int64_t grad_attributes_fixed[]; };  // [view][vertex][channel]
+layout(set = 0, binding = 18, std430) buffer Boxes { int boxes[]; };  // see bounds.comp
 
 // work_count slots after the count and dispatch arguments (LOST_WALKS = 4 in diff.glsl):
 const uint CAMERA_MAX = 5u;     // magnitude_bits of the largest camera-gradient term
@@ -93,6 +94,9 @@ vec4 load_observed(uint index) {
 }
 
 // Loss terms of one pixel with antialiased value a: (sum term, intersection, union).
+// Only the background terms (a = 0) are summed over the whole image, once per
+// observation (classify.comp stage 1); every evaluation adds, for the pixels near the
+// object, what its value changes: loss_excess.
 vec3 loss_terms(uint index, vec4 a) {
     vec4 o = load_observed(index);
     float n = float(pc.width * pc.height);
@@ -101,6 +105,19 @@ vec3 loss_terms(uint index, vec4 a) {
         return vec3(dot(d, d) / (n * float(image_channels())), 0.0, 0.0);
     } else if (pc.loss == LOSS_IOU) {
         return vec3(0.0, a.x * o.x, a.x + o.x - a.x * o.x);
+    }
+    return vec3(a.x * distance_field[index] / n, 0.0, 0.0);
+}
+
+// loss_terms(index, a) - loss_terms(index, 0), in forms without cancellation.
+vec3 loss_excess(uint index, vec4 a) {
+    vec4 o = load_observed(index);
+    float n = float(pc.width * pc.height);
+    if (pc.loss == LOSS_MSE) {
+        // (a - o)^2 - o^2 = a (a - 2 o)
+        return vec3(dot(a, a - 2.0 * o) / (n * float(image_channels())), 0.0, 0.0);
+    } else if (pc.loss == LOSS_IOU) {
+        return vec3(0.0, a.x * o.x, a.x * (1.0 - o.x));
     }
     return vec3(a.x * distance_field[index] / n, 0.0, 0.0);
 }

@@ -34,6 +34,12 @@ const FINALIZE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/loss_finalize.
 const POSE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/pose_gradient.comp.spv"));
 const RESOLVE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/fixed_resolve.comp.spv"));
 const LAMBERT: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/lambert.comp.spv"));
+const BOUNDS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/bounds.comp.spv"));
+
+/// Words of the boxes buffer for `views` views (layout in `glsl/bounds.comp`).
+fn box_words(views: u32) -> u64 {
+    4 + 8 * views as u64
+}
 
 /// The work-count buffer: listed pixels, 3 dispatch arguments, then (at [`LOST_WALKS`])
 /// the silhouette searches that gave up since [`Scene::record_prepare`], then the largest
@@ -271,13 +277,14 @@ pub struct DiffRenderer {
     pose: ComputePipeline,
     resolve: ComputePipeline,
     lambert: ComputePipeline,
+    bounds: ComputePipeline,
     distance: DistanceField,
 }
 
 impl DiffRenderer {
     pub fn new(ctx: &Context) -> Result<Self> {
         let pass_bytes = std::mem::size_of::<PassConstants>() as u32;
-        let bindings = [BindingKind::StorageBuffer; 18];
+        let bindings = [BindingKind::StorageBuffer; 19];
         Ok(Self {
             rasterizer: Rasterizer::new(ctx)?,
             classify: ComputePipeline::new(
@@ -336,6 +343,7 @@ impl DiffRenderer {
                 &[BindingKind::StorageBuffer; 9],
                 std::mem::size_of::<LambertConstants>() as u32,
             )?,
+            bounds: ComputePipeline::new(ctx, "bounds", &spirv(BOUNDS)?, &bindings, pass_bytes)?,
             distance: DistanceField::new(ctx)?,
         })
     }
@@ -380,6 +388,12 @@ pub struct Scene {
     stats: Buffer,
     /// int64 fixed-point loss sums at `stats_shift`, [view][3].
     stats_fixed: Buffer,
+    /// The background's loss sums (`loss_terms(pixel, 0)` over the whole image, in the
+    /// fixed point of stats_fixed): written by [`Scene::record_prepare`], copied into
+    /// stats_fixed to start every evaluation.
+    background: Buffer,
+    /// Per view, the box of pixels that classify.comp visits (`glsl/bounds.comp`).
+    boxes: Buffer,
     stats_shift: i32,
     partials: Buffer,
     partial_slots: u32,
@@ -581,6 +595,8 @@ impl Scene {
             antialiased: device("antialiased", pixels * image_channels * 4)?,
             stats: device("loss stats", n as u64 * 16)?,
             stats_fixed: device("fixed-point loss stats", n as u64 * 24)?,
+            background: device("background loss stats", n as u64 * 24)?,
+            boxes: device("pixel boxes", box_words(n) * 4)?,
             stats_shift,
             partials: device("loss partial sums", n as u64 * partial_slots as u64 * 12)?,
             partial_slots,
@@ -628,16 +644,73 @@ impl Scene {
         self.views.set(views)
     }
 
-    /// Records what depends only on the observation (the distance field); run once.
+    /// Records what depends only on the observation (the distance field, the loss of an
+    /// empty image); run once, before the first [`Scene::record`].
     pub fn record_prepare(&self, renderer: &DiffRenderer, rec: &mut Recorder) -> Result<()> {
         rec.fill_buffer(&self.work_count, 0);
+        let (w, h, n) = (self.views.width(), self.views.height(), self.views.count());
         if let Some([a, b]) = &self.distance_scratch {
-            let shape = (self.views.width(), self.views.height(), self.views.count());
             renderer
                 .distance
-                .record(rec, &self.observed, [a, b], &self.distance, shape)?;
+                .record(rec, &self.observed, [a, b], &self.distance, (w, h, n))?;
         }
+        rec.fill_buffer(&self.stats_fixed, 0);
+        rec.memory_barrier();
+        let groups = (w * h).div_ceil(64).clamp(1, self.grid_groups);
+        rec.run_compute(
+            &renderer.classify,
+            &self.pass_bindings(),
+            &self.pass_constants(1),
+            Groups::Count(groups, 1, n),
+        );
+        rec.memory_barrier();
+        rec.copy_buffer(
+            &self.stats_fixed,
+            0,
+            &self.background,
+            0,
+            self.background.size(),
+        );
+        rec.memory_barrier();
         Ok(())
+    }
+
+    /// The bindings of the per-pixel passes (`glsl/include/diff_pass.glsl`).
+    fn pass_bindings(&self) -> [Binding<'_>; 19] {
+        [
+            Binding::buffer(self.mesh.positions()),
+            Binding::buffer(self.mesh.triangles()),
+            Binding::buffer(&self.neighbours),
+            Binding::buffer(self.views.views()),
+            Binding::buffer(&self.attributes),
+            Binding::buffer(&self.ids),
+            Binding::buffer(&self.observed),
+            Binding::buffer(&self.distance),
+            Binding::buffer(&self.antialiased),
+            Binding::buffer(&self.stats),
+            Binding::buffer(&self.grad_camera),
+            Binding::buffer(&self.grad_attributes),
+            Binding::buffer(&self.partials),
+            Binding::buffer(&self.work),
+            Binding::buffer(&self.work_count),
+            Binding::buffer(&self.stats_fixed),
+            Binding::buffer(&self.grad_camera_fixed),
+            Binding::buffer(&self.grad_attributes_fixed),
+            Binding::buffer(&self.boxes),
+        ]
+    }
+
+    fn pass_constants(&self, stage: u32) -> PassConstants {
+        PassConstants {
+            channels: self.channels,
+            loss: self.loss.code(),
+            vertex_count: self.mesh.vertex_count(),
+            width: self.views.width(),
+            height: self.views.height(),
+            partial_slots: self.partial_slots,
+            stats_shift: self.stats_shift,
+            stage,
+        }
     }
 
     /// Records one evaluation: rasterize, shade, antialias, loss, backward, pose
@@ -699,9 +772,22 @@ impl Scene {
             4 * WORK_COUNT_WORDS - after_lost,
             0,
         );
-        for buffer in [
-            &self.stats,
+        // The loss sums start from the background's (record_prepare), the image from
+        // background: classify.comp only visits the pixels near the object.
+        rec.copy_buffer(
+            &self.background,
+            0,
             &self.stats_fixed,
+            0,
+            self.background.size(),
+        );
+        let n = self.views.count();
+        rec.fill_buffer_range(&self.boxes, 16, 8 * n as u64, 0x7fff_ffff);
+        rec.fill_buffer_range(&self.boxes, 16 + 8 * n as u64, 8 * n as u64, 0x8000_0001);
+        for buffer in [
+            &self.antialiased,
+            &self.partials,
+            &self.stats,
             &self.grad_camera,
             &self.grad_attributes,
             &self.grad_camera_fixed,
@@ -724,46 +810,31 @@ impl Scene {
             ImageState::TransferSrc,
         );
         rec.copy_image_to_buffer(&self.gbuffer.ids, &self.ids)?;
+        let bindings = self.pass_bindings();
+        let constants = self.pass_constants(0);
+        let vertex_groups = self
+            .mesh
+            .vertex_count()
+            .div_ceil(64)
+            .clamp(1, self.grid_groups);
+        for (stage, groups) in [(vertex_groups, n), (1, n)].into_iter().enumerate() {
+            rec.memory_barrier();
+            rec.run_compute(
+                &renderer.bounds,
+                &bindings,
+                &self.pass_constants(stage as u32),
+                Groups::Count(groups.0, 1, groups.1),
+            );
+        }
         rec.memory_barrier();
-        marks.pass(rec, "id copy");
+        marks.pass(rec, "id copy, bounds");
 
-        let constants = PassConstants {
-            channels: self.channels,
-            loss: self.loss.code(),
-            vertex_count: self.mesh.vertex_count(),
-            width: self.views.width(),
-            height: self.views.height(),
-            partial_slots: self.partial_slots,
-            stats_shift: self.stats_shift,
-            stage: 0,
-        };
-        let bindings = [
-            Binding::buffer(self.mesh.positions()),
-            Binding::buffer(self.mesh.triangles()),
-            Binding::buffer(&self.neighbours),
-            Binding::buffer(self.views.views()),
-            Binding::buffer(&self.attributes),
-            Binding::buffer(&self.ids),
-            Binding::buffer(&self.observed),
-            Binding::buffer(&self.distance),
-            Binding::buffer(&self.antialiased),
-            Binding::buffer(&self.stats),
-            Binding::buffer(&self.grad_camera),
-            Binding::buffer(&self.grad_attributes),
-            Binding::buffer(&self.partials),
-            Binding::buffer(&self.work),
-            Binding::buffer(&self.work_count),
-            Binding::buffer(&self.stats_fixed),
-            Binding::buffer(&self.grad_camera_fixed),
-            Binding::buffer(&self.grad_attributes_fixed),
-        ];
-        let (w, h, n) = (self.views.width(), self.views.height(), self.views.count());
         let work = Groups::Indirect(&self.work_count, 4);
         rec.run_compute(
             &renderer.classify,
             &bindings,
             &constants,
-            Groups::Count(w.div_ceil(8), h.div_ceil(8), n),
+            Groups::Indirect(&self.boxes, 0),
         );
         rec.memory_barrier();
         marks.pass(rec, "classify");
