@@ -656,12 +656,11 @@ impl Scene {
         }
         rec.fill_buffer(&self.stats_fixed, 0);
         rec.memory_barrier();
-        let groups = (w * h).div_ceil(64).clamp(1, self.grid_groups);
         rec.run_compute(
             &renderer.classify,
             &self.pass_bindings(),
             &self.pass_constants(1),
-            Groups::Count(groups, 1, n),
+            Groups::Count(self.grid(w * h), 1, n),
         );
         rec.memory_barrier();
         rec.copy_buffer(
@@ -698,6 +697,11 @@ impl Scene {
             Binding::buffer(&self.grad_attributes_fixed),
             Binding::buffer(&self.boxes),
         ]
+    }
+
+    /// Workgroups of 64 for a grid-stride pass over `items`.
+    fn grid(&self, items: u32) -> u32 {
+        items.div_ceil(64).clamp(1, self.grid_groups)
     }
 
     fn pass_constants(&self, stage: u32) -> PassConstants {
@@ -812,18 +816,14 @@ impl Scene {
         rec.copy_image_to_buffer(&self.gbuffer.ids, &self.ids)?;
         let bindings = self.pass_bindings();
         let constants = self.pass_constants(0);
-        let vertex_groups = self
-            .mesh
-            .vertex_count()
-            .div_ceil(64)
-            .clamp(1, self.grid_groups);
-        for (stage, groups) in [(vertex_groups, n), (1, n)].into_iter().enumerate() {
+        let vertex_groups = self.grid(self.mesh.vertex_count());
+        for (stage, groups) in [vertex_groups, 1].into_iter().enumerate() {
             rec.memory_barrier();
             rec.run_compute(
                 &renderer.bounds,
                 &bindings,
                 &self.pass_constants(stage as u32),
-                Groups::Count(groups.0, 1, groups.1),
+                Groups::Count(groups, 1, n),
             );
         }
         rec.memory_barrier();
@@ -895,7 +895,7 @@ impl Scene {
                     max_slot,
                     terms_per_listed: TERMS_PER_LISTED,
                 },
-                Groups::Count(count.div_ceil(64).clamp(1, self.grid_groups), 1, 1),
+                Groups::Count(self.grid(count), 1, 1),
             );
         };
         resolve(
@@ -934,7 +934,7 @@ impl Scene {
             subgroups: self.subgroups,
         };
         let per_stage = [
-            Groups::Count(vertices.div_ceil(64).clamp(1, self.grid_groups), 1, 1),
+            Groups::Count(self.grid(vertices), 1, 1),
             Groups::Count(self.pose_groups, 1, n),
             Groups::Count(1, 1, n),
         ];
