@@ -9,15 +9,29 @@ layout(set = 0, binding = 2, std430) readonly buffer LogDen { float log_den[]; }
 layout(set = 0, binding = 3, std430) writeonly buffer Sums { vec4 sums[]; };
 
 void main() {
-    uint m = gl_GlobalInvocationID.x;
-    if (m >= pc.m) return;
-    vec3 t = moving[m].xyz;
-    vec4 acc = vec4(0.0);
-    for (uint n = 0u; n < pc.n; ++n) {
-        vec3 x = target[n].xyz;
-        vec3 d = x - t;
-        float p = exp(-dot(d, d) * pc.inv_two_sigma2 - log_den[n]);
-        acc += vec4(p * x, p);
+    uint lane = gl_SubgroupInvocationID;
+    vec3 t[ROWS];
+    vec4 acc[ROWS];
+    for (uint r = 0u; r < ROWS; ++r) {
+        t[r] = moving[min(row(r), pc.m - 1u)].xyz;
+        acc[r] = vec4(0.0);
     }
-    sums[m] = acc;
+    for (uint base = 0u; base < pc.n; base += gl_SubgroupSize) {
+        uint j = min(base + lane, pc.n - 1u);
+        vec3 x = target[j].xyz;
+        // A lane past the end carries an infinite denominator: its terms are 0.
+        float den = base + lane < pc.n ? log_den[j] : 3.4e38;
+        for (uint k = 0u; k < gl_SubgroupSize; ++k) {
+            vec3 xk = subgroupShuffle(x, k);
+            float dk = subgroupShuffle(den, k);
+            for (uint r = 0u; r < ROWS; ++r) {
+                vec3 d = xk - t[r];
+                float p = exp(-dot(d, d) * pc.inv_two_sigma2 - dk);
+                acc[r] += vec4(p * xk, p);
+            }
+        }
+    }
+    for (uint r = 0u; r < ROWS; ++r) {
+        if (row(r) < pc.m) sums[row(r)] = acc[r];
+    }
 }

@@ -1,6 +1,6 @@
 #version 460
-// CPD E-step, pass 1: per target point n, log(sum_m exp(-|x_n - t_m|^2 / (2 s2)) + c),
-// accumulated as a running log-sum-exp.
+// CPD E-step, pass 1: per target point n, log(sum_m exp(-|x_n - t_m|^2 / (2 s2)) + c):
+// the largest exponent first (no exponentials), then the sum relative to it.
 #include "cpd.glsl"
 
 layout(set = 0, binding = 0, std430) readonly buffer Moving { vec4 moving[]; };  // t_m
@@ -8,20 +8,42 @@ layout(set = 0, binding = 1, std430) readonly buffer Target { vec4 target[]; }; 
 layout(set = 0, binding = 2, std430) writeonly buffer LogDen { float log_den[]; };
 
 void main() {
-    uint n = gl_GlobalInvocationID.x;
-    if (n >= pc.n) return;
-    vec3 x = target[n].xyz;
-    float top = pc.log_c;  // running maximum exponent
-    float sum = 1.0;       // sum of exp(exponent - top)
-    for (uint m = 0u; m < pc.m; ++m) {
-        vec3 d = x - moving[m].xyz;
-        float e = -dot(d, d) * pc.inv_two_sigma2;
-        if (e > top) {
-            sum = sum * exp(top - e) + 1.0;
-            top = e;
-        } else {
-            sum += exp(e - top);
+    uint lane = gl_SubgroupInvocationID;
+    vec3 x[ROWS];
+    float nearest[ROWS];  // smallest squared distance
+    for (uint r = 0u; r < ROWS; ++r) {
+        x[r] = target[min(row(r), pc.n - 1u)].xyz;
+        nearest[r] = 3.4e38;
+    }
+    for (uint base = 0u; base < pc.m; base += gl_SubgroupSize) {
+        vec3 t = moving[min(base + lane, pc.m - 1u)].xyz;
+        for (uint k = 0u; k < gl_SubgroupSize; ++k) {
+            vec3 tk = subgroupShuffle(t, k);  // a clamped index repeats the last point
+            for (uint r = 0u; r < ROWS; ++r) {
+                vec3 d = x[r] - tk;
+                nearest[r] = min(nearest[r], dot(d, d));
+            }
         }
     }
-    log_den[n] = top + log(sum);
+    float top[ROWS], sum[ROWS];
+    for (uint r = 0u; r < ROWS; ++r) {
+        top[r] = max(-nearest[r] * pc.inv_two_sigma2, pc.log_c);
+        sum[r] = exp(pc.log_c - top[r]);
+    }
+    for (uint base = 0u; base < pc.m; base += gl_SubgroupSize) {
+        vec3 t = moving[min(base + lane, pc.m - 1u)].xyz;
+        bool real = base + lane < pc.m;
+        for (uint k = 0u; k < gl_SubgroupSize; ++k) {
+            vec3 tk = subgroupShuffle(t, k);
+            bool counts = subgroupShuffle(real, k);
+            for (uint r = 0u; r < ROWS; ++r) {
+                vec3 d = x[r] - tk;
+                float term = exp(-dot(d, d) * pc.inv_two_sigma2 - top[r]);
+                sum[r] += counts ? term : 0.0;
+            }
+        }
+    }
+    for (uint r = 0u; r < ROWS; ++r) {
+        if (row(r) < pc.n) log_den[row(r)] = top[r] + log(sum[r]);
+    }
 }

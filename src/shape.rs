@@ -44,7 +44,8 @@ pub struct ShapeSpace {
 }
 
 /// What CPD found for one training instance, both flattened M x 3: the coefficients W and
-/// the displacement G W they make (with the G of the fit: dense, or low-rank for large M).
+/// the displacement G W they make (with the G of the fit: exact, or the Nystrom one of the
+/// low-rank option).
 #[derive(Clone, Debug)]
 pub struct TrainingFit {
     pub w: Vec<f64>,

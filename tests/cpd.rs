@@ -124,7 +124,7 @@ fn recovers_a_known_smooth_deformation() {
 }
 
 #[test]
-fn low_rank_m_step_agrees_with_the_dense_one() {
+fn low_rank_m_step_agrees_with_the_exact_one() {
     let source = points(400, 4, 1.0);
     let target: Vec<DVec3> = points(380, 5, 1.0)
         .into_iter()
@@ -136,7 +136,7 @@ fn low_rank_m_step_agrees_with_the_dense_one() {
         ..CpdParams::default()
     };
     let low = CpdParams {
-        rank: Some(60),
+        rank: Some(120),
         ..dense
     };
     let a = gpu(&source, &target, &dense);
@@ -144,7 +144,7 @@ fn low_rank_m_step_agrees_with_the_dense_one() {
     let diff = max_difference(&a.deformed, &b.deformed);
     assert!(
         diff <= 1e-3 * extent(&target),
-        "dense and rank-60 differ by {diff}"
+        "exact and rank-120 differ by {diff}"
     );
 }
 
@@ -312,5 +312,90 @@ fn kernel_product_matches_float64() {
         worst <= 1e-4 * scale,
         "kernel product off by {worst} (scale {scale})"
     );
+    common::assert_no_validation_errors(&ctx);
+}
+
+/// One M-step on the device (Nystrom preconditioner, conjugate gradients on the device's
+/// kernel products) against the dense float64 solve of (dP1 G + s I) W = PX - dP1 Y, for
+/// a wide kernel (the preconditioner alone is exact) and a narrow one (conjugate
+/// gradients must do the work), with rows that no target reaches (P1 = 0).
+#[test]
+fn device_m_step_matches_the_dense_float64_solve() {
+    use vkdr::cpd::linalg::{self, Matrix};
+    use vkdr::cpd::m_step::MStep;
+    use vkdr::cpd::{Expectation, GpuBackend};
+    let ctx = common::context();
+    let pipelines = CpdPipelines::new(&ctx).unwrap();
+    let m = 400;
+    let y = points(m, 31, 2.0);
+    let p1: Vec<f64> = (0..m)
+        .map(|i| {
+            if i % 17 == 0 {
+                0.0
+            } else {
+                0.2 + (i % 7) as f64 * 0.15
+            }
+        })
+        .collect();
+    let px: Vec<DVec3> = (0..m)
+        .map(|i| p1[i] * smooth(y[(i * 7) % m], 0.2))
+        .collect();
+    let e = Expectation {
+        p1: p1.clone(),
+        pt1: vec![],
+        px: px.clone(),
+    };
+    // (beta, s, whether the preconditioner alone must be exact)
+    for (beta, s, wide) in [(2.0, 1e-3, true), (0.15, 1e-2, false)] {
+        let mut backend = GpuBackend::new(&ctx, &pipelines, &y, &y, beta).unwrap();
+        let m_step = MStep::new(&y, beta, None).unwrap();
+        let (mut w, mut gw) = (Matrix::zeros(m, 3), Matrix::zeros(m, 3));
+        let solved = m_step
+            .solve(&mut backend, &e, &y, s, &mut w, &mut gw)
+            .unwrap();
+        let mut a = cpd::kernel_matrix(&y, beta);
+        let mut b = Matrix::zeros(m, 3);
+        for i in 0..m {
+            for j in 0..m {
+                a.data[i * m + j] *= p1[i];
+            }
+            a.data[i * m + i] += s;
+            let r = px[i] - p1[i] * y[i];
+            b.data[3 * i..3 * i + 3].copy_from_slice(&r.to_array());
+        }
+        let want = linalg::solve(a, b).unwrap();
+        // Compared where the registration uses W: the displacement G W.
+        let want_gw = cpd::kernel_matrix(&y, beta).mul(&want);
+        let scale = want_gw.data.iter().map(|v| v.abs()).fold(0.0, f64::max);
+        let worst = gw
+            .data
+            .iter()
+            .zip(&want_gw.data)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        eprintln!(
+            "beta {beta}: {} products, rank {}, G W off by {worst:e} (scale {scale:e})",
+            solved.products,
+            m_step.rank()
+        );
+        if wide {
+            assert!(solved.converged && solved.products == 0, "{solved:?}");
+        } else {
+            assert!(
+                solved.products > 1,
+                "conjugate gradients did not run: {solved:?}"
+            );
+        }
+        assert!(
+            worst <= 1e-4 * scale,
+            "beta {beta}: G W off by {worst} of {scale}"
+        );
+        for i in (0..m).step_by(17) {
+            assert!(
+                DVec3::new(w.at(i, 0), w.at(i, 1), w.at(i, 2)).length() < 1e-6,
+                "row {i} without targets moved"
+            );
+        }
+    }
     common::assert_no_validation_errors(&ctx);
 }

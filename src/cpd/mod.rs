@@ -3,11 +3,10 @@
 //!
 //! The E-step (P1, Pt1, PX) runs on the device without forming the M x N matrix: one pass
 //! per target point accumulates a log-sum-exp denominator, one pass per source point the
-//! sums (`glsl/cpd_*.comp`). The M-step solves the well-conditioned
-//! `(dP1 G + lambda sigma^2 I) W = PX - dP1 Y` in float64 on the host: densely for small M,
-//! else with the top eigenvectors of G (found by subspace iteration whose kernel products
-//! run on the device, `glsl/gauss_product.comp`) and the Woodbury identity, never
-//! inverting dP1. [`reference`] runs the same algorithm with a float64 E-step.
+//! sums (`glsl/cpd_*.comp`). The M-step ([`m_step`]) solves for W by preconditioned
+//! conjugate gradients whose products G V run on the device (`glsl/gauss_product.comp`),
+//! never forming G either: one path from ten points to 1e5. [`reference`] runs the same
+//! algorithm with a float64 E-step and kernel products.
 //!
 //! As in Myronenko's reference code, both sets are normalised before registration, here
 //! jointly by the source's centroid and RMS radius (so that differences of size between
@@ -15,6 +14,7 @@
 //! millimetres and metres give the same answer.
 
 pub mod linalg;
+pub mod m_step;
 pub mod reference;
 
 use std::time::Instant;
@@ -28,10 +28,13 @@ use crate::gpu::{
 };
 use crate::mesh::centroid;
 use linalg::Matrix;
+use m_step::MStep;
 
 const DENOMINATOR: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/cpd_denominator.comp.spv"));
 const ACCUMULATE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/cpd_accumulate.comp.spv"));
 const GAUSS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/gauss_product.comp.spv"));
+/// Points served per invocation by the passes above (`ROWS` in `glsl/include/cpd.glsl`).
+const ROWS: u32 = 4;
 
 /// CPD settings (defaults as in the paper and pycpd: beta = 2, lambda = 2, w = 0.1).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -46,8 +49,8 @@ pub struct CpdParams {
     pub max_iterations: usize,
     /// Stop when sigma^2 changes by less than this fraction of its initial value.
     pub tolerance: f64,
-    /// M-step with the top `rank` eigenvectors of G; `None`: dense up to
-    /// [`CpdParams::DENSE_LIMIT`] source points, else rank 100.
+    /// Replace G by its Nystrom approximation from this many landmarks (a faster,
+    /// approximate M-step); `None`: the exact G by conjugate gradients ([`m_step`]).
     pub rank: Option<usize>,
 }
 
@@ -65,8 +68,6 @@ impl Default for CpdParams {
 }
 
 impl CpdParams {
-    pub const DENSE_LIMIT: usize = 2000;
-
     fn validate(&self) -> Result<()> {
         let ok = self.beta > 0.0
             && self.beta.is_finite()
@@ -89,7 +90,7 @@ impl CpdParams {
 /// The outcome of one registration.
 #[derive(Clone, Debug)]
 pub struct CpdResult {
-    /// The moved source points T = Y + G W (low-rank G when the M-step was low-rank).
+    /// The moved source points T = Y + G W (the Nystrom G with the low-rank option).
     pub deformed: Vec<DVec3>,
     /// The coefficients W (M x 3), in the data's units: deformed = Y + G W.
     pub w: Vec<DVec3>,
@@ -99,6 +100,8 @@ pub struct CpdResult {
     pub iterations: usize,
     pub converged: bool,
     pub seconds: f64,
+    /// Gaussian-kernel products of the M-steps, all iterations together.
+    pub products: usize,
 }
 
 /// Sums of the E-step: P1 (per source point), Pt1 (per target point), PX (per source).
@@ -133,123 +136,6 @@ pub fn kernel_matrix(points: &[DVec3], beta: f64) -> Matrix {
     g
 }
 
-/// The M-step's view of G: dense, or its top eigenpairs.
-enum Kernel {
-    Dense(Matrix),
-    LowRank { vectors: Matrix, values: Vec<f64> },
-}
-
-impl Kernel {
-    fn apply(&self, w: &Matrix) -> Matrix {
-        match self {
-            Kernel::Dense(g) => g.mul(w),
-            Kernel::LowRank { vectors, values } => {
-                let mut coeffs = vectors.transpose().mul(w);
-                for (r, &l) in values.iter().enumerate() {
-                    for c in 0..coeffs.cols {
-                        let v = coeffs.at(r, c) * l;
-                        coeffs.set(r, c, v);
-                    }
-                }
-                vectors.mul(&coeffs)
-            }
-        }
-    }
-
-    /// Solves (dP1 G + s I) W = B.
-    fn solve(&self, p1: &[f64], s: f64, b: &Matrix) -> Result<Matrix> {
-        match self {
-            Kernel::Dense(g) => {
-                let mut a = g.clone();
-                for i in 0..a.rows {
-                    for j in 0..a.cols {
-                        a.data[i * a.cols + j] *= p1[i];
-                    }
-                    a.data[i * a.cols + i] += s;
-                }
-                linalg::solve(a, b.clone())
-            }
-            Kernel::LowRank { vectors: q, values } => {
-                // Woodbury: (s I + dP Q L Q^T)^-1 = (I - dP Q (s L^-1 + Q^T dP Q)^-1 Q^T) / s.
-                let k = values.len();
-                let mut dpq = q.clone();
-                for i in 0..dpq.rows {
-                    for c in 0..k {
-                        dpq.data[i * k + c] *= p1[i];
-                    }
-                }
-                let mut inner = q.transpose().mul(&dpq);
-                for (c, &l) in values.iter().enumerate() {
-                    let v = inner.at(c, c) + s / l;
-                    inner.set(c, c, v);
-                }
-                let correction = dpq.mul(&linalg::solve(inner, q.transpose().mul(b))?);
-                let mut w = b.clone();
-                for (x, y) in w.data.iter_mut().zip(&correction.data) {
-                    *x = (*x - y) / s;
-                }
-                Ok(w)
-            }
-        }
-    }
-}
-
-/// Top `rank` eigenpairs of G by subspace iteration with Rayleigh-Ritz, the kernel
-/// products done by the backend.
-fn top_eigenpairs(backend: &mut dyn Backend, m: usize, rank: usize) -> Result<Kernel> {
-    let k = (rank + 10).min(m);
-    // A deterministic start: smooth functions of the index mixed with a hash.
-    let mut q = Matrix::zeros(m, k);
-    for i in 0..m {
-        for c in 0..k {
-            let h = ((i as u64 * 2654435761 + c as u64 * 40503) % 1000003) as f64 / 1000003.0;
-            q.set(i, c, h - 0.5);
-        }
-    }
-    orthonormalize(&mut q);
-    // The spectrum of a Gaussian kernel decays fast: a few power steps suffice.
-    for _ in 0..6 {
-        q = backend.kernel_product(&q)?;
-        orthonormalize(&mut q);
-    }
-    let gq = backend.kernel_product(&q)?;
-    let h = q.transpose().mul(&gq);
-    let (values, vectors) = linalg::symmetric_eigen(&h);
-    let rotated = q.mul(&vectors);
-    let keep = rank.min(m);
-    let mut out = Matrix::zeros(m, keep);
-    for i in 0..m {
-        for c in 0..keep {
-            out.set(i, c, rotated.at(i, c));
-        }
-    }
-    let values: Vec<f64> = values[..keep].iter().map(|&v| v.max(1e-12)).collect();
-    Ok(Kernel::LowRank {
-        vectors: out,
-        values,
-    })
-}
-
-/// Modified Gram-Schmidt on the columns (a column that vanishes is left at zero).
-fn orthonormalize(q: &mut Matrix) {
-    for c in 0..q.cols {
-        for prev in 0..c {
-            let dot: f64 = (0..q.rows).map(|i| q.at(i, c) * q.at(i, prev)).sum();
-            for i in 0..q.rows {
-                let v = q.at(i, c) - dot * q.at(i, prev);
-                q.set(i, c, v);
-            }
-        }
-        let norm: f64 = (0..q.rows).map(|i| q.at(i, c).powi(2)).sum::<f64>().sqrt();
-        if norm > 1e-300 {
-            for i in 0..q.rows {
-                let v = q.at(i, c) / norm;
-                q.set(i, c, v);
-            }
-        }
-    }
-}
-
 fn to_points(m: &Matrix) -> Vec<DVec3> {
     m.data
         .chunks(3)
@@ -271,11 +157,7 @@ pub fn run(
     check_points(target, "target")?;
     let started = Instant::now();
     let (m, n) = (source.len(), target.len());
-    let kernel = match params.rank {
-        Some(rank) if rank < m => top_eigenpairs(backend, m, rank)?,
-        None if m > CpdParams::DENSE_LIMIT => top_eigenpairs(backend, m, 100)?,
-        _ => Kernel::Dense(kernel_matrix(source, params.beta)),
-    };
+    let m_step = MStep::new(source, params.beta, params.rank)?;
     let x_norms: Vec<f64> = target.iter().map(|x| x.length_squared()).collect();
 
     // Initial sigma^2: mean squared distance over all pairs, in closed form.
@@ -289,7 +171,8 @@ pub fn run(
     let floor = 1e-12 * initial.max(1e-300);
     let mut sigma2 = if initial > 0.0 { initial } else { 1.0 };
 
-    let mut w = Matrix::zeros(m, 3);
+    let (mut w, mut gw) = (Matrix::zeros(m, 3), Matrix::zeros(m, 3));
+    let mut products = 0;
     let mut moving = source.to_vec();
     let mut history = vec![sigma2];
     let mut converged = false;
@@ -301,15 +184,10 @@ pub fn run(
             + (m as f64 / n as f64).ln();
         let e = backend.expectation(&moving, sigma2, log_c)?;
         // M-step: (dP1 G + lambda sigma^2 I) W = PX - dP1 Y.
-        let mut b = Matrix::zeros(m, 3);
+        let solved = m_step.solve(backend, &e, source, params.lambda * sigma2, &mut w, &mut gw)?;
+        products += solved.products;
         for i in 0..m {
-            let r = e.px[i] - e.p1[i] * source[i];
-            b.data[3 * i..3 * i + 3].copy_from_slice(&r.to_array());
-        }
-        w = kernel.solve(&e.p1, params.lambda * sigma2, &b)?;
-        let t = kernel.apply(&w);
-        for i in 0..m {
-            moving[i] = source[i] + DVec3::new(t.at(i, 0), t.at(i, 1), t.at(i, 2));
+            moving[i] = source[i] + DVec3::new(gw.at(i, 0), gw.at(i, 1), gw.at(i, 2));
         }
         let np: f64 = e.p1.iter().sum();
         let xpx: f64 = e.pt1.iter().zip(&x_norms).map(|(a, b)| a * b).sum();
@@ -347,6 +225,7 @@ pub fn run(
         iterations,
         converged,
         seconds: started.elapsed().as_secs_f64(),
+        products,
     })
 }
 
@@ -374,13 +253,6 @@ struct EstepConstants {
     log_c: f32,
 }
 
-#[repr(C)]
-#[derive(Clone, Copy, Pod, Zeroable)]
-struct GaussConstants {
-    m: u32,
-    inv_two_beta2: f32,
-}
-
 /// CPD's compute pipelines.
 pub struct CpdPipelines {
     denominator: ComputePipeline,
@@ -406,7 +278,7 @@ impl CpdPipelines {
                 &[b; 4],
                 16,
             )?,
-            gauss: ComputePipeline::new(ctx, "gauss product", &spirv(GAUSS)?, &[b; 3], 8)?,
+            gauss: ComputePipeline::new(ctx, "gauss product", &spirv(GAUSS)?, &[b; 3], 16)?,
         })
     }
 }
@@ -462,8 +334,8 @@ impl<'a> GpuBackend<'a> {
             log_den: device("cpd log denominators", n * 4)?,
             sums: device("cpd sums", m * 16)?,
             source_points: Buffer::from_slice(ctx, "cpd source", &vec4s(source, offset))?,
-            columns: device("kernel columns", m * 64)?,
-            product: device("kernel product", m * 64)?,
+            columns: device("kernel columns", m * 16)?,
+            product: device("kernel product", m * 16)?,
         })
     }
 }
@@ -493,7 +365,7 @@ impl Backend for GpuBackend<'_> {
                 Binding::buffer(&self.log_den),
             ],
             &constants,
-            Groups::Count(n.div_ceil(64), 1, 1),
+            Groups::Count(n.div_ceil(64 * ROWS), 1, 1),
         );
         rec.memory_barrier();
         rec.run_compute(
@@ -505,7 +377,7 @@ impl Backend for GpuBackend<'_> {
                 Binding::buffer(&self.sums),
             ],
             &constants,
-            Groups::Count(m.div_ceil(64), 1, 1),
+            Groups::Count(m.div_ceil(64 * ROWS), 1, 1),
         );
         self.ctx.submit_and_wait(rec)?;
         let sums = self.sums.read_range::<[f32; 4]>(0, m as usize)?;
@@ -530,15 +402,18 @@ impl Backend for GpuBackend<'_> {
     fn kernel_product(&mut self, v: &Matrix) -> Result<Matrix> {
         let m = self.source.len();
         let mut out = Matrix::zeros(m, v.cols);
-        let constants = GaussConstants {
+        let constants = EstepConstants {
             m: m as u32,
-            inv_two_beta2: (0.5 / (self.beta * self.beta)) as f32,
+            n: m as u32,
+            inv_two_sigma2: (0.5 / (self.beta * self.beta)) as f32,
+            log_c: 0.0,
         };
-        for block in (0..v.cols).step_by(16) {
-            let columns: Vec<[f32; 16]> = (0..m)
+        for block in (0..v.cols).step_by(4) {
+            let width = 4.min(v.cols - block);
+            let columns: Vec<[f32; 4]> = (0..m)
                 .map(|i| {
                     std::array::from_fn(|c| {
-                        if block + c < v.cols {
+                        if c < width {
                             v.at(i, block + c) as f32
                         } else {
                             0.0
@@ -557,12 +432,12 @@ impl Backend for GpuBackend<'_> {
                     Binding::buffer(&self.product),
                 ],
                 &constants,
-                Groups::Count((m as u32).div_ceil(64), 1, 1),
+                Groups::Count((m as u32).div_ceil(64 * ROWS), 1, 1),
             );
             self.ctx.submit_and_wait(rec)?;
-            let product = self.product.read_range::<[f32; 16]>(0, m)?;
+            let product = self.product.read_range::<[f32; 4]>(0, m)?;
             for (i, row) in product.iter().enumerate() {
-                for c in 0..16.min(v.cols - block) {
+                for c in 0..width {
                     out.set(i, block + c, row[c] as f64);
                 }
             }

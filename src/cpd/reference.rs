@@ -11,6 +11,8 @@ pub struct ReferenceBackend {
     source: Vec<DVec3>,
     target: Vec<DVec3>,
     beta: f64,
+    /// The dense kernel matrix, formed at the first product.
+    kernel: Option<Matrix>,
 }
 
 impl Backend for ReferenceBackend {
@@ -37,7 +39,11 @@ impl Backend for ReferenceBackend {
     }
 
     fn kernel_product(&mut self, v: &Matrix) -> Result<Matrix> {
-        Ok(super::kernel_matrix(&self.source, self.beta).mul(v))
+        let (source, beta) = (&self.source, self.beta);
+        let g = self
+            .kernel
+            .get_or_insert_with(|| super::kernel_matrix(source, beta));
+        Ok(g.mul(v))
     }
 }
 
@@ -54,6 +60,7 @@ pub fn register(source: &[DVec3], target: &[DVec3], params: &CpdParams) -> Resul
             source: y.to_vec(),
             target: x.to_vec(),
             beta: params.beta,
+            kernel: None,
         })
     };
     super::run_normalized(make, source, target, params, &mut |_, _| {})

@@ -516,7 +516,8 @@ fn query_features(instance: &ash::Instance, pd: vk::PhysicalDevice) -> FeatureSu
         let needed_ops = vk::SubgroupFeatureFlags::BASIC
             | vk::SubgroupFeatureFlags::ARITHMETIC
             | vk::SubgroupFeatureFlags::BALLOT
-            | vk::SubgroupFeatureFlags::VOTE;
+            | vk::SubgroupFeatureFlags::VOTE
+            | vk::SubgroupFeatureFlags::SHUFFLE;
         let subgroups_ok = subgroup.supported_operations.contains(needed_ops)
             && subgroup
                 .supported_stages
@@ -552,7 +553,7 @@ fn query_features(instance: &ash::Instance, pd: vk::PhysicalDevice) -> FeatureSu
                     core.fragment_stores_and_atomics == vk::TRUE,
                 ),
                 (
-                    "compute subgroups (basic, arithmetic, ballot, vote)",
+                    "compute subgroups (basic, arithmetic, ballot, vote, shuffle)",
                     subgroups_ok,
                 ),
             ],

@@ -128,6 +128,10 @@ struct CpdArgs {
     w: f64,
     #[arg(long, default_value_t = CpdParams::default().max_iterations)]
     max_iterations: usize,
+    /// Replace the kernel by its Nystrom approximation from this many landmarks (faster,
+    /// approximate); by default the M-step uses the exact kernel.
+    #[arg(long)]
+    rank: Option<usize>,
 }
 
 impl CpdArgs {
@@ -137,6 +141,7 @@ impl CpdArgs {
             lambda: self.lambda,
             w: self.w,
             max_iterations: self.max_iterations,
+            rank: self.rank,
             ..Default::default()
         }
     }

@@ -1,0 +1,338 @@
+//! CPD's M-step without a dense solve, the same from ten points to 1e5.
+//!
+//! Each iteration solves `(dP1 G + s I) W = PX - dP1 Y` (s = lambda sigma^2) for the
+//! M x 3 coefficients W. Dividing row i by P1_i gives a symmetric positive definite system
+//!
+//! ```text
+//! A W = R,   A = G + s D^-1,   R = D^-1 PX - Y,   D = diag(max(P1, floor)),
+//! ```
+//!
+//! solved in two parts. G ~ F F^T is a Nystrom approximation built once (in float64 on
+//! the host) from the kernel's columns at up to [`LANDMARKS`] source points chosen by
+//! farthest-point sampling. First the system with F F^T in place of G is solved exactly,
+//! by the Woodbury identity through the Cholesky factor of the r x r matrix
+//! I + F^T (s D^-1)^-1 F (refactored each iteration, as D and s change). What F F^T
+//! misses, E = G - F F^T, is positive semi-definite, so the relative error of that
+//! solution (in the A-norm) is at most trace(S^-1/2 E S^-1/2) = sum_i E_ii d_i / s, known
+//! exactly on the host. A wide kernel's spectrum decays fast: at the default beta = 2 the
+//! bound stays below [`NYSTROM_EXACT`] and that solution is the M-step, with no kernel
+//! product at all (it matches a dense float64 solve to 1e-7; `tests/cpd.rs`).
+//!
+//! Otherwise (a narrow kernel) conjugate gradients refine it, three columns side by side,
+//! one product G V on the device per step (`glsl/gauss_product.comp`, never forming G),
+//! preconditioned by (F F^T + S + diag E)^-1. G W is carried along, so the moved points
+//! Y + G W cost no extra product. Since A >= mu P^-1 with mu = min_i S_i / (S_i + E_ii),
+//! an exact step is at most 1 / mu; the device's products are float32, and once sigma^2 is
+//! so small that their rounding matters to A a step comes out longer (or the curvature
+//! vanishes), and the column stops there. A column also stops when its step no longer
+//! moves G W, the displacement the registration uses: W itself is ill-determined along the
+//! kernel's smallest eigenvalues, G W is not.
+//!
+//! Rows with P1_i = 0 (no target near) must get W_i = 0, as the undivided system says; the
+//! floor 1e-10 s keeps D invertible, and there s / floor = 1e10 pins W_i near zero.
+//!
+//! With [`super::CpdParams::rank`] set, G is replaced by its Nystrom approximation from
+//! that many landmarks outright: the preconditioner is then the exact inverse, one
+//! Woodbury solve, no kernel products (faster, approximate: an explicit option).
+
+use faer::linalg::solvers::{Llt, Solve};
+use faer::{Mat, Side};
+use glam::DVec3;
+
+use super::linalg::{self, Matrix};
+use super::{Backend, Expectation};
+use crate::error::{Error, Result};
+
+/// Landmarks of the Nystrom preconditioner (at most).
+pub const LANDMARKS: usize = 200;
+/// Conjugate-gradient stopping point: residual below this fraction of the right-hand
+/// side's, per column, in the preconditioned norm.
+pub const TOLERANCE: f64 = 1e-6;
+/// Kernel products per M-step at most (a narrow kernel late in a registration may stop
+/// here; the next iteration starts again from its own Nystrom solution).
+pub const MAX_PRODUCTS: usize = 40;
+/// Conjugate-gradient steps up to this multiple of the longest exact one are taken.
+const MAX_STEP: f64 = 2.0;
+/// The Nystrom solution is taken as it is when its error bound is below this (a bound
+/// from a trace: the true error is orders of magnitude smaller).
+const NYSTROM_EXACT: f64 = 1e-2;
+
+/// The M-step's fixed part: the Nystrom factor of the source's kernel.
+pub struct MStep {
+    /// F (M x r): G ~ F F^T.
+    features: Matrix,
+    /// diag(G - F F^T) = 1 - |F_i|^2.
+    missed: Vec<f64>,
+    /// G is F F^T (the low-rank option): solve directly, without kernel products.
+    low_rank: bool,
+}
+
+/// What one M-step did.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Solved {
+    /// Kernel products used.
+    pub products: usize,
+    /// Every column reached [`TOLERANCE`] (always true for the low-rank option).
+    pub converged: bool,
+}
+
+impl MStep {
+    /// The exact M-step (conjugate gradients on G) with a Nystrom preconditioner from
+    /// [`LANDMARKS`] landmarks, or with `rank: Some(k)` G replaced by the Nystrom
+    /// approximation from k landmarks.
+    pub fn new(source: &[DVec3], beta: f64, rank: Option<usize>) -> Result<Self> {
+        let landmarks = farthest_points(source, rank.unwrap_or(LANDMARKS).max(1));
+        let inv = 1.0 / (2.0 * beta * beta);
+        let kernel = |a: DVec3, b: DVec3| (-(a - b).length_squared() * inv).exp();
+        let (m, l) = (source.len(), landmarks.len());
+        let mut columns = Matrix::zeros(m, l);
+        for (i, &y) in source.iter().enumerate() {
+            for (c, &k) in landmarks.iter().enumerate() {
+                columns.data[i * l + c] = kernel(y, source[k]);
+            }
+        }
+        // G ~ C K_ll^+ C^T = F F^T with F = C U S^-1/2 over the well-determined
+        // eigenpairs of K_ll.
+        let mut inner = Matrix::zeros(l, l);
+        for (r, &k) in landmarks.iter().enumerate() {
+            inner.data[r * l..(r + 1) * l].copy_from_slice(&columns.data[k * l..(k + 1) * l]);
+        }
+        let (values, vectors) = linalg::symmetric_eigen(&inner);
+        let top = values.first().copied().unwrap_or(0.0);
+        if !top.is_finite() {
+            return Err(Error::InvalidInput(
+                "CPD: the source's kernel is not finite".into(),
+            ));
+        }
+        let kept = values.iter().take_while(|&&v| v > 1e-13 * top).count();
+        let mut scaled = Matrix::zeros(l, kept);
+        for r in 0..l {
+            for c in 0..kept {
+                scaled.set(r, c, vectors.at(r, c) / values[c].sqrt());
+            }
+        }
+        let features = columns.mul(&scaled);
+        let missed = features
+            .data
+            .chunks(kept.max(1))
+            .map(|row| (1.0 - row.iter().map(|f| f * f).sum::<f64>()).max(0.0))
+            .collect();
+        Ok(Self {
+            features,
+            missed,
+            low_rank: rank.is_some(),
+        })
+    }
+
+    /// The rank of the Nystrom factor.
+    pub fn rank(&self) -> usize {
+        self.features.cols
+    }
+
+    /// One M-step for the E-step `e` of the source `y` with s = lambda sigma^2: writes W
+    /// to `w` and the displacement G W to `gw` (both M x 3).
+    pub fn solve(
+        &self,
+        backend: &mut dyn Backend,
+        e: &Expectation,
+        y: &[DVec3],
+        s: f64,
+        w: &mut Matrix,
+        gw: &mut Matrix,
+    ) -> Result<Solved> {
+        let m = y.len();
+        let floor = 1e-10 * s;
+        let d: Vec<f64> = e.p1.iter().map(|&p| p.max(floor)).collect();
+        let mut rhs = Matrix::zeros(m, 3);
+        for i in 0..m {
+            let r = e.px[i] / d[i] - y[i];
+            rhs.data[3 * i..3 * i + 3].copy_from_slice(&r.to_array());
+        }
+        let diagonal: Vec<f64> = d.iter().map(|di| s / di).collect();
+        let pre = Woodbury::new(&self.features, &diagonal)?;
+        // The Nystrom solution, exact for F F^T. Its relative error (in the A-norm) is at
+        // most |P E| <= trace(S^-1/2 E S^-1/2) = sum_i E_ii d_i / s.
+        *w = pre.apply(&rhs);
+        *gw = self.features.mul(&self.features.transpose().mul(w));
+        let bound = self
+            .missed
+            .iter()
+            .zip(&d)
+            .map(|(e, di)| e * di)
+            .sum::<f64>()
+            / s;
+        if self.low_rank || bound <= NYSTROM_EXACT {
+            return Ok(Solved {
+                products: 0,
+                converged: true,
+            });
+        }
+        *gw = backend.kernel_product(w)?;
+
+        // Conjugate gradients from there, three independent columns, one product per step,
+        // preconditioned with what F F^T misses on the diagonal too: with it,
+        // A >= mu P^-1 for mu = min_i S_i / (S_i + E_ii), so an exact step is at most 1 / mu.
+        let corrected: Vec<f64> = diagonal
+            .iter()
+            .zip(&self.missed)
+            .map(|(a, b)| a + b)
+            .collect();
+        let mu = diagonal
+            .iter()
+            .zip(&corrected)
+            .map(|(a, b)| a / b)
+            .fold(1.0, f64::min);
+        let longest = MAX_STEP / mu;
+        let pre = Woodbury::new(&self.features, &corrected)?;
+        let a_times = |v: &Matrix, gv: &Matrix| {
+            let mut out = gv.clone();
+            for (k, x) in out.data.iter_mut().enumerate() {
+                *x += diagonal[k / 3] * v.data[k];
+            }
+            out
+        };
+        // Residuals are measured in the preconditioned norm r^T P r: rows without targets
+        // have S_i ~ 1e10, and the plain norm would be theirs alone.
+        let target = column_dot(&rhs, &pre.apply(&rhs)).map(|n| TOLERANCE * TOLERANCE * n);
+        let mut residual = rhs;
+        let aw = a_times(w, gw);
+        for (r, a) in residual.data.iter_mut().zip(&aw.data) {
+            *r -= a;
+        }
+        let mut z = pre.apply(&residual);
+        let mut rz = column_dot(&residual, &z);
+        let mut direction = z;
+        let mut active: [bool; 3] = std::array::from_fn(|c| rz[c] > target[c]);
+        let mut products = 1;
+        while active.contains(&true) && products < MAX_PRODUCTS {
+            let g_direction = backend.kernel_product(&direction)?;
+            products += 1;
+            let a_direction = a_times(&direction, &g_direction);
+            let curvature = column_dot(&direction, &a_direction);
+            let mut step = [0.0; 3];
+            for c in 0..3 {
+                // A step past the longest exact one (or a direction without curvature)
+                // means the products' float32 rounding has reached the system's own
+                // scale. Stop that column where it is.
+                let alpha = rz[c] / curvature[c];
+                if active[c] && curvature[c] > 0.0 && alpha <= longest {
+                    step[c] = alpha;
+                } else {
+                    active[c] = false;
+                }
+            }
+            for k in 0..3 * m {
+                let c = k % 3;
+                w.data[k] += step[c] * direction.data[k];
+                gw.data[k] += step[c] * g_direction.data[k];
+                residual.data[k] -= step[c] * a_direction.data[k];
+            }
+            z = pre.apply(&residual);
+            let next = column_dot(&residual, &z);
+            let moved = column_dot(&g_direction, &g_direction);
+            let displacement = column_dot(gw, gw);
+            for c in 0..3 {
+                // Converged in W, or in the displacement G W that the registration uses.
+                if next[c] <= target[c]
+                    || step[c] * step[c] * moved[c] <= TOLERANCE * TOLERANCE * displacement[c]
+                {
+                    active[c] = false;
+                }
+            }
+            for k in 0..3 * m {
+                let c = k % 3;
+                let beta = if rz[c] > 0.0 { next[c] / rz[c] } else { 0.0 };
+                direction.data[k] = z.data[k] + beta * direction.data[k];
+            }
+            rz = next;
+        }
+        Ok(Solved {
+            products,
+            converged: !active.contains(&true),
+        })
+    }
+}
+
+fn column_dot(a: &Matrix, b: &Matrix) -> [f64; 3] {
+    let mut dot = [0.0; 3];
+    for (k, (x, y)) in a.data.iter().zip(&b.data).enumerate() {
+        dot[k % 3] += x * y;
+    }
+    dot
+}
+
+/// (F F^T + diag(S))^-1 by the Woodbury identity:
+/// S^-1 - S^-1 F (I + F^T S^-1 F)^-1 F^T S^-1.
+struct Woodbury<'a> {
+    features: &'a Matrix,
+    inverse: Vec<f64>,
+    inner: Llt<f64>,
+}
+
+impl<'a> Woodbury<'a> {
+    fn new(features: &'a Matrix, diagonal: &[f64]) -> Result<Self> {
+        let inverse: Vec<f64> = diagonal.iter().map(|d| 1.0 / d).collect();
+        let r = features.cols;
+        let mut scaled = features.clone();
+        for (i, row) in scaled.data.chunks_mut(r.max(1)).enumerate() {
+            let f = inverse[i].sqrt();
+            row.iter_mut().for_each(|v| *v *= f);
+        }
+        let mut inner: Mat<f64> = scaled.view().transpose() * scaled.view();
+        for k in 0..r {
+            inner[(k, k)] += 1.0;
+        }
+        let inner = inner
+            .llt(Side::Lower)
+            .map_err(|e| Error::InvalidInput(format!("CPD's M-step preconditioner: {e:?}")))?;
+        Ok(Self {
+            features,
+            inverse,
+            inner,
+        })
+    }
+
+    fn apply(&self, v: &Matrix) -> Matrix {
+        let mut scaled = v.clone();
+        for (i, row) in scaled.data.chunks_mut(v.cols).enumerate() {
+            row.iter_mut().for_each(|x| *x *= self.inverse[i]);
+        }
+        if self.features.cols == 0 {
+            return scaled;
+        }
+        let projected: Mat<f64> = self.features.view().transpose() * scaled.view();
+        let solved = self.inner.solve(projected.as_ref());
+        let back: Mat<f64> = self.features.view() * solved.as_ref();
+        for (i, row) in scaled.data.chunks_mut(v.cols).enumerate() {
+            for (c, x) in row.iter_mut().enumerate() {
+                *x -= self.inverse[i] * back[(i, c)];
+            }
+        }
+        scaled
+    }
+}
+
+/// `count` indices of `points` (at most all), each the farthest from those before it,
+/// starting from the first point: a deterministic, even cover.
+fn farthest_points(points: &[DVec3], count: usize) -> Vec<usize> {
+    let count = count.min(points.len());
+    let mut chosen = Vec::with_capacity(count);
+    let mut nearest = vec![f64::INFINITY; points.len()];
+    let mut next = 0;
+    while chosen.len() < count {
+        chosen.push(next);
+        let p = points[next];
+        let mut best = (f64::NEG_INFINITY, 0);
+        for (i, q) in points.iter().enumerate() {
+            nearest[i] = nearest[i].min((*q - p).length_squared());
+            if nearest[i] > best.0 {
+                best = (nearest[i], i);
+            }
+        }
+        if best.0 <= 0.0 {
+            break; // every point coincides with a landmark
+        }
+        next = best.1;
+    }
+    chosen
+}
