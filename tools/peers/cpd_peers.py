@@ -5,16 +5,20 @@ where it installs from PyPI, probreg, on the same point sets, with the same beta
 
     method,points,seconds,iterations,mean_distance,device
 
-`points` is M = N; `mean_distance` is the mean distance from each moved source point to
-its true counterpart in the target (the sets are a known smooth deformation of each
-other, with the target's order shuffled), in units of the source's RMS radius.
+`points` is M; `mean_distance` is the mean distance from each moved source point to its
+true counterpart (the sets are a known smooth deformation of each other; the target is
+shuffled, and with --missing / --outliers loses that fraction of its points and gains
+uniform outliers), in units of the source's RMS radius.
 
 The sets are normalised so the source has zero mean and unit RMS radius: then vkdr's
 beta (relative to that radius) and the peers' beta (in data units) are the same number.
 
     pip install pycpd numpy [probreg]
     cargo build --release
-    python3 tools/peers/cpd_peers.py --out cpd-peers/ [--sizes 1000,5000,20000]
+    python3 tools/peers/cpd_peers.py --out cpd-peers/ [--sizes 1000,2000,5000] [--repeats 3]
+
+Each method runs --repeats times per size; the CSV has every run, and the summary printed
+at the end the median seconds.
 
 Not part of CI.
 """
@@ -29,7 +33,7 @@ import time
 import numpy as np
 
 
-def point_sets(n, seed):
+def point_sets(n, seed, missing=0.0, outliers=0.0):
     rng = np.random.default_rng(seed)
     # Points on a bumpy closed surface (a deformed sphere), then a smooth deformation.
     d = rng.normal(size=(n, 3))
@@ -37,12 +41,15 @@ def point_sets(n, seed):
     source = d * (1.0 + 0.2 * np.sin(3 * d[:, :1]) * np.cos(2 * d[:, 1:2])) * np.array([1.0, 1.6, 1.0])
     source = (source - source.mean(0)) / np.sqrt((np.linalg.norm(source - source.mean(0), axis=1) ** 2).mean())
     target = source + 0.15 * np.stack([np.sin(2 * source[:, 1]), np.cos(1.5 * source[:, 2]) - 1, 0.5 * source[:, 0] * source[:, 1]], 1)
-    order = rng.permutation(n)
-    return source, target[order], np.argsort(order)
+    # The observed target: shuffled, a fraction missing, uniform outliers in its box added.
+    observed = target[rng.permutation(n)[: n - int(missing * n)]]
+    lo, hi = target.min(0), target.max(0)
+    observed = np.concatenate([observed, rng.uniform(lo, hi, size=(int(outliers * n), 3))])
+    return source, observed[rng.permutation(len(observed))], target
 
 
-def mean_error(moved, target, inverse):
-    return float(np.linalg.norm(moved - target[inverse], axis=1).mean())
+def mean_error(moved, truth):
+    return float(np.linalg.norm(moved - truth, axis=1).mean())
 
 
 def main():
@@ -54,52 +61,62 @@ def main():
     parser.add_argument("--w", type=float, default=0.1)
     parser.add_argument("--max-iterations", type=int, default=150)
     parser.add_argument("--vkdr", default="target/release/vkdr")
-    parser.add_argument("--skip-pycpd-above", type=int, default=20000)
+    parser.add_argument("--skip-pycpd-above", type=int, default=5000, help="peers only up to this size")
+    parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--missing", type=float, default=0.0, help="fraction of target points removed")
+    parser.add_argument("--outliers", type=float, default=0.0, help="uniform outliers, as a fraction of n")
     args = parser.parse_args()
     os.makedirs(args.out, exist_ok=True)
     rows = []
     for n in [int(s) for s in args.sizes.split(",")]:
-        source, target, inverse = point_sets(n, seed=n)
+        source, target, truth = point_sets(n, seed=n, missing=args.missing, outliers=args.outliers)
         src, tgt = os.path.join(args.out, f"source_{n}.npy"), os.path.join(args.out, f"target_{n}.npy")
         np.save(src, source)
         np.save(tgt, target)
 
-        out = os.path.join(args.out, f"vkdr_{n}")
-        started = time.perf_counter()
-        run = subprocess.run([args.vkdr, "cpd", src, tgt, "--beta", str(args.beta), "--lambda", str(args.lamb),
-                              "--w", str(args.w), "--max-iterations", str(args.max_iterations), "--out", out],
-                             capture_output=True, text=True)
-        wall = time.perf_counter() - started
-        if run.returncode != 0:
-            sys.exit(f"vkdr cpd failed: {run.stderr}")
-        log = json.load(open(os.path.join(out, "log.json")))
-        device = run.stderr.split(" on ", 1)[-1].splitlines()[0].strip() if " on " in run.stderr else "vkdr device"
-        moved = np.load(os.path.join(out, "deformed.npy"))
-        rows.append(("vkdr", n, round(wall, 3), log["iterations"], mean_error(moved, target, inverse), device))
-        print(*rows[-1], sep=",", flush=True)
-
-        if n <= args.skip_pycpd_above:
+        for _ in range(args.repeats):
+            out = os.path.join(args.out, f"vkdr_{n}")
+            started = time.perf_counter()
+            run = subprocess.run([args.vkdr, "cpd", src, tgt, "--beta", str(args.beta), "--lambda", str(args.lamb),
+                                  "--w", str(args.w), "--max-iterations", str(args.max_iterations), "--out", out],
+                                 capture_output=True, text=True)
+            wall = time.perf_counter() - started
+            if run.returncode != 0:
+                sys.exit(f"vkdr cpd failed: {run.stderr}")
+            log = json.load(open(os.path.join(out, "log.json")))
+            device = run.stderr.split(" on ", 1)[-1].splitlines()[0].strip() if " on " in run.stderr else "vkdr device"
+            moved = np.load(os.path.join(out, "deformed.npy"))
+            rows.append(("vkdr", n, round(wall, 3), log["iterations"], mean_error(moved, truth), device))
+            print(*rows[-1], sep=",", flush=True)
+        if n > args.skip_pycpd_above:
+            continue
+        for _ in range(args.repeats):
             from pycpd import DeformableRegistration
             reg = DeformableRegistration(X=target, Y=source, alpha=args.lamb, beta=args.beta, w=args.w,
                                          max_iterations=args.max_iterations, tolerance=1e-5 * np.var(target) * 3)
             started = time.perf_counter()
             moved, _ = reg.register()
-            rows.append(("pycpd", n, round(time.perf_counter() - started, 3), reg.iteration, mean_error(moved, target, inverse), "numpy cpu"))
+            rows.append(("pycpd", n, round(time.perf_counter() - started, 3), reg.iteration, mean_error(moved, truth), "numpy cpu"))
             print(*rows[-1], sep=",", flush=True)
-        try:
-            from probreg import cpd as probreg_cpd
+        for _ in range(args.repeats):
+            try:
+                from probreg import cpd as probreg_cpd
+            except ImportError:
+                break
             started = time.perf_counter()
             tf, _, iterations = probreg_cpd.registration_cpd(source, target, tf_type_name="nonrigid", w=args.w,
                                                               beta=args.beta, lmd=args.lamb, maxiter=args.max_iterations)
             moved = tf.transform(source)
-            rows.append(("probreg", n, round(time.perf_counter() - started, 3), iterations, mean_error(moved, target, inverse), "numpy cpu"))
+            rows.append(("probreg", n, round(time.perf_counter() - started, 3), iterations, mean_error(moved, truth), "numpy cpu"))
             print(*rows[-1], sep=",", flush=True)
-        except ImportError:
-            pass
     with open(os.path.join(args.out, "cpd_peers.csv"), "w", newline="") as f:
         writer = csv.writer(f)
         writer.writerow(["method", "points", "seconds", "iterations", "mean_distance", "device"])
         writer.writerows(rows)
+    print("method,points,median_seconds,median_error,runs")
+    for key in sorted({(r[0], r[1]) for r in rows}, key=lambda k: (k[1], k[0])):
+        runs = [r for r in rows if (r[0], r[1]) == key]
+        print(key[0], key[1], float(np.median([r[2] for r in runs])), float(np.median([r[4] for r in runs])), len(runs), sep=",")
     print(f"wrote {os.path.join(args.out, 'cpd_peers.csv')}")
 
 

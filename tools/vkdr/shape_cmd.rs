@@ -83,6 +83,7 @@ pub fn run(
         .collect();
     let ctx = Context::new()?;
     let total = training.len();
+    let mut last = std::time::Instant::now();
     let space = ShapeSpace::build(
         &ctx,
         &category,
@@ -93,11 +94,16 @@ pub fn run(
         |done, _, name| {
             let width = 30;
             let filled = done * width / total.max(1);
+            let took = match done {
+                0 => String::new(),
+                _ => format!("(last {:.1} s) ", last.elapsed().as_secs_f64()),
+            };
             eprint!(
-                "\r  CPD [{}{}] {done}/{total} {name:<24}",
+                "\r  CPD [{}{}] {done}/{total} {took}{name:<24}",
                 "#".repeat(filled),
-                ".".repeat(width - filled)
+                ".".repeat(width - filled),
             );
+            last = std::time::Instant::now();
             if done == total {
                 eprintln!();
             }
