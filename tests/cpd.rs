@@ -61,6 +61,21 @@ fn gpu(source: &[DVec3], target: &[DVec3], params: &CpdParams) -> CpdResult {
     result
 }
 
+/// The largest entry difference of two matrices, and the largest entry of `want`.
+fn worst_and_scale(
+    got: &vkdr::cpd::linalg::Matrix,
+    want: &vkdr::cpd::linalg::Matrix,
+) -> (f64, f64) {
+    let scale = want.data.iter().map(|v| v.abs()).fold(0.0, f64::max);
+    let worst = got
+        .data
+        .iter()
+        .zip(&want.data)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    (worst, scale)
+}
+
 fn max_difference(a: &[DVec3], b: &[DVec3]) -> f64 {
     a.iter()
         .zip(b)
@@ -291,7 +306,7 @@ fn kernel_product_matches_float64() {
     let pipelines = CpdPipelines::new(&ctx).unwrap();
     let y = points(150, 21, 2.0);
     let mut backend = GpuBackend::new(&ctx, &pipelines, &y, &y, 0.7).unwrap();
-    let cols = 21; // more than one block of 16, and a partial one
+    let cols = 21; // several blocks of 4 columns, and a partial one
     let v = Matrix {
         rows: 150,
         cols,
@@ -301,13 +316,7 @@ fn kernel_product_matches_float64() {
     };
     let got = backend.kernel_product(&v).unwrap();
     let want = cpd::kernel_matrix(&y, 0.7).mul(&v);
-    let scale = want.data.iter().map(|x| x.abs()).fold(0.0, f64::max);
-    let worst = got
-        .data
-        .iter()
-        .zip(&want.data)
-        .map(|(a, b)| (a - b).abs())
-        .fold(0.0, f64::max);
+    let (worst, scale) = worst_and_scale(&got, &want);
     assert!(
         worst <= 1e-4 * scale,
         "kernel product off by {worst} (scale {scale})"
@@ -353,7 +362,8 @@ fn device_m_step_matches_the_dense_float64_solve() {
         let solved = m_step
             .solve(&mut backend, &e, &y, s, &mut w, &mut gw)
             .unwrap();
-        let mut a = cpd::kernel_matrix(&y, beta);
+        let g = cpd::kernel_matrix(&y, beta);
+        let mut a = g.clone();
         let mut b = Matrix::zeros(m, 3);
         for i in 0..m {
             for j in 0..m {
@@ -365,14 +375,7 @@ fn device_m_step_matches_the_dense_float64_solve() {
         }
         let want = linalg::solve(a, b).unwrap();
         // Compared where the registration uses W: the displacement G W.
-        let want_gw = cpd::kernel_matrix(&y, beta).mul(&want);
-        let scale = want_gw.data.iter().map(|v| v.abs()).fold(0.0, f64::max);
-        let worst = gw
-            .data
-            .iter()
-            .zip(&want_gw.data)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0, f64::max);
+        let (worst, scale) = worst_and_scale(&gw, &g.mul(&want));
         eprintln!(
             "beta {beta}: {} products, rank {}, G W off by {worst:e} (scale {scale:e})",
             solved.products,
