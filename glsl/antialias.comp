@@ -1,11 +1,23 @@
 #version 460
-// Forward of the listed pixels (see classify.comp): shade (coverage or interpolated
-// attributes), antialias across silhouette edges between adjacent pixels, write the value
-// and add the loss terms to stats_fixed (int64 atomics: the same sum in any order).
-// Grid-stride loop over the work list.
+// Forward of the listed pixels (see classify.comp), grid-stride over the work list.
+// Stage 0: each listed pixel p finds its pairs with p + (1, 0) and p + (0, 1) (the walk to
+// the silhouette crossing, once per pair) and writes them to pairs_x / pairs_y (a pair
+// that matters has both pixels listed, so every pair read later is written here).
+// Stage 1: shade (coverage or interpolated attributes), antialias across the silhouette
+// edges of the pixel's four pairs, write the value and add the loss terms to stats_fixed
+// (int64 atomics: the same sum in any order).
 #include "diff_pass.glsl"
 
 layout(local_size_x = 64) in;
+
+uint pair_record(uint view, ivec2 p, ivec2 size, int s) {
+    ivec2 q = p + STEPS[s];
+    if (any(greaterThanEqual(q, size)) || !pair_matters(id_at(p, view), id_at(q, view))) return 0u;
+    Pair pair = make_pair(views[view], view, p, q, s == 0);
+    if (pair.lost) atomicAdd(work_count[LOST_WALKS], 1u);
+    if (pair.missed) atomicAdd(work_count[MISSED_STARTS], 1u);
+    return encode_pair(pair, p);
+}
 
 vec4 antialiased_value(uint view, ivec2 p, ivec2 size, uint id) {
     ViewData vd = views[view];
@@ -15,10 +27,7 @@ vec4 antialiased_value(uint view, ivec2 p, ivec2 size, uint id) {
         ivec2 q = p + STEPS[s];
         if (any(lessThan(q, ivec2(0))) || any(greaterThanEqual(q, size))) continue;
         if (!pair_matters(id_at(p, view), id_at(q, view))) continue;
-        // Pairs are always made from their left / upper pixel, as the backward does.
-        Pair pair = s < 2 ? make_pair(vd, view, p, q, s == 0) : make_pair(vd, view, q, p, s == 2);
-        if (pair.lost) atomicAdd(work_count[LOST_WALKS], 1u);
-        if (pair.missed && s < 2) atomicAdd(work_count[MISSED_STARTS], 1u);
+        Pair pair = pair_at(vd, view, p, s);
         if (!pair.valid) continue;
         ivec2 affected = pair.affects_g ? pair.g : pair.f;
         if (affected != p) continue;
@@ -35,7 +44,13 @@ void main() {
     for (uint i = gl_GlobalInvocationID.x; i < count; i += stride) {
         uint index = work[i];
         uint view = view_of(index);
-        vec4 a = antialiased_value(view, pixel_of(index), size, ids[index]);
+        ivec2 p = pixel_of(index);
+        if (pc.stage == 0u) {
+            pairs_x[index] = pair_record(view, p, size, 0);
+            pairs_y[index] = pair_record(view, p, size, 1);
+            continue;
+        }
+        vec4 a = antialiased_value(view, p, size, ids[index]);
         store_antialiased(index, a);
         vec3 terms = loss_excess(index, a);
         for (int k = 0; k < 3; ++k) {

@@ -8,6 +8,7 @@
 //   - with attributes, the interpolation: dL/dc per pixel (own term plus the pair terms
 //     that moved colour into or out of it) to the attributes (grad_attributes) and, via
 //     the exact barycentrics, to the triangle's three clip-space vertices.
+// The pairs are the forward's records (pairs_x, pairs_y), so no pass here walks.
 // It runs twice: stage 0 only finds the largest term of each sum kind (atomicMax into
 // work_count[CAMERA_MAX], [ATTRIBUTE_MAX]), stage 1 adds every term at the scale that
 // implies (include/fixed_point.glsl); fixed_resolve.comp turns the sums into floats.
@@ -86,7 +87,7 @@ void handle_pixel(uint index) {
         if (!pair_matters(id_at(p, view), id_at(q, view))) continue;
         bool forward = s < 2;
         if (!forward && !interpolated) continue;
-        Pair pair = forward ? make_pair(vd, view, p, q, s == 0) : make_pair(vd, view, q, p, s == 2);
+        Pair pair = pair_at(vd, view, p, s);
         if (!pair.valid) continue;
         if (forward) crossing_backward(vd, view, pair);
         if (interpolated) {

@@ -220,11 +220,23 @@ struct Pair {
     bool clamped;         // the crossing lies behind f's centre: alpha held at 0
     ivec2 f;
     ivec2 g;
-    uint front_triangle;  // triangle at f
     Crossing crossing;
     bool affects_g;       // alpha > 0.5: the front surface reaches into g's pixel
     float weight;         // |alpha - 0.5|
 };
+
+// The pair's crossing where the crossing edge's function has values ef at f and eb at g.
+void place_crossing(inout Pair pair, float ef, float eb) {
+    pair.crossing.found = true;
+    pair.crossing.alpha = ef / (ef - eb);
+    pair.crossing.ef = ef;
+    pair.crossing.eb = eb;
+    // A crossing behind the front pixel's centre (see find_crossing) counts as at it, and
+    // moves nothing there.
+    pair.clamped = pair.crossing.alpha < 0.0;
+    pair.affects_g = pair.crossing.alpha > 0.5;
+    pair.weight = abs(max(pair.crossing.alpha, 0.0) - 0.5);
+}
 
 // The pair (p, q) with q = p + step (step (1, 0) or (0, 1)), both inside the image.
 Pair make_pair(ViewData vd, uint view, ivec2 p, ivec2 q, bool along_x) {
@@ -245,10 +257,10 @@ Pair make_pair(ViewData vd, uint view, ivec2 p, ivec2 q, bool along_x) {
     bool p_front = zp <= zq;
     pair.f = p_front ? p : q;
     pair.g = p_front ? q : p;
-    pair.front_triangle = (p_front ? id_p : id_q) - 1u;
+    uint front_triangle = (p_front ? id_p : id_q) - 1u;
     vec2 pf = p_front ? np : nq;
     vec2 pb = p_front ? nq : np;
-    Crossing c = find_crossing(vd, pair.front_triangle, pf, pb);
+    Crossing c = find_crossing(vd, front_triangle, pf, pb);
     pair.lost = c.lost;
     pair.missed = c.missed;
     if (!c.found) return pair;
@@ -256,10 +268,42 @@ Pair make_pair(ViewData vd, uint view, ivec2 p, ivec2 q, bool along_x) {
     if (handled_along_x(edge_tri, c.edge, vd) != along_x) return pair;
     pair.valid = true;
     pair.crossing = c;
-    // A crossing behind the front pixel's centre (see find_crossing) counts as at it, and
-    // moves nothing there.
-    pair.clamped = c.alpha < 0.0;
-    pair.affects_g = c.alpha > 0.5;
-    pair.weight = abs(max(c.alpha, 0.0) - 0.5);
+    place_crossing(pair, c.ef, c.eb);
+    return pair;
+}
+
+// A valid pair as one word, so that the walk runs once per pair and evaluation (make_pair
+// from antialias.comp stage 0) and the passes after it rebuild the pair from the word:
+// bit 31 valid, bit 30 the first pixel p is the front one, bits 28-29 the crossing edge,
+// bits 0-27 its triangle (Scene::new refuses meshes with 2^28 triangles or more). The
+// rebuilt crossing evaluates the edge's function at the two pixel centres as the walk did.
+const uint PAIR_VALID = 0x80000000u;
+const uint PAIR_P_FRONT = 0x40000000u;
+const uint PAIR_TRIANGLE = 0x0fffffffu;
+
+uint encode_pair(Pair pair, ivec2 p) {
+    if (!pair.valid) return 0u;
+    return PAIR_VALID | (pair.f == p ? PAIR_P_FRONT : 0u) | (uint(pair.crossing.edge) << 28u)
+        | pair.crossing.triangle;
+}
+
+Pair decode_pair(ViewData vd, ivec2 p, ivec2 q, bool along_x, uint record) {
+    Pair pair;
+    pair.valid = (record & PAIR_VALID) != 0u;
+    pair.lost = false;
+    pair.missed = false;
+    pair.clamped = false;
+    if (!pair.valid) return pair;
+    bool p_front = (record & PAIR_P_FRONT) != 0u;
+    pair.f = p_front ? p : q;
+    pair.g = p_front ? q : p;
+    pair.crossing.lost = false;
+    pair.crossing.missed = false;
+    pair.crossing.triangle = record & PAIR_TRIANGLE;
+    pair.crossing.edge = int((record >> 28u) & 3u);
+    Triangle tri = load_triangle(vd, pair.crossing.triangle);
+    float ef = walk_edge_function(tri, pair.crossing.edge, pixel_ndc(pair.f, vd));
+    float eb = walk_edge_function(tri, pair.crossing.edge, pixel_ndc(pair.g, vd));
+    place_crossing(pair, ef, eb);
     return pair;
 }

@@ -31,6 +31,11 @@ layout(set = 0, binding = 15, std430) buffer StatsFixed { int64_t stats_fixed[];
 layout(set = 0, binding = 16, std430) buffer GradCameraFixed { int64_t grad_camera_fixed[]; };  // [view][vertex][3]
 layout(set = 0, binding = 17, std430) buffer GradAttributesFixed { int64_t grad_attributes_fixed[]; };  // [view][vertex][channel]
 layout(set = 0, binding = 18, std430) buffer Boxes { int boxes[]; };  // see bounds.comp
+// The pair records (diff.glsl encode_pair) of each listed pixel p with p + (1, 0) and with
+// p + (0, 1): antialias.comp stage 0 walks to every crossing once and writes them; the
+// antialias and its backward read them instead of walking again.
+layout(set = 0, binding = 19, std430) buffer PairsX { uint pairs_x[]; };  // [view][y][x]
+layout(set = 0, binding = 20, std430) buffer PairsY { uint pairs_y[]; };  // [view][y][x]
 
 // work_count slots after the count and dispatch arguments (LOST_WALKS = 4 in diff.glsl):
 const uint CAMERA_MAX = 5u;     // magnitude_bits of the largest camera-gradient term
@@ -59,7 +64,8 @@ layout(push_constant, std430) uniform Constants {
     uint height;
     uint partial_slots;
     int stats_shift;
-    uint stage;  // antialias_backward.comp: 0 measures the largest terms, 1 adds them
+    uint stage;  // antialias.comp: 0 finds the pairs, 1 antialiases; its backward: 0
+                 // measures the largest terms, 1 adds them
 } pc;
 
 #include "diff.glsl"
@@ -80,6 +86,16 @@ bool pair_matters(uint a, uint b) {
 }
 
 const ivec2 STEPS[4] = ivec2[4](ivec2(1, 0), ivec2(0, 1), ivec2(-1, 0), ivec2(0, -1));
+
+// The pair of pixel p with its neighbour p + STEPS[s] (inside the image, pair_matters),
+// from the record its left / upper pixel holds.
+Pair pair_at(ViewData vd, uint view, ivec2 p, int s) {
+    ivec2 q = p + STEPS[s];
+    ivec2 first = s < 2 ? p : q;
+    uint index = pixel_index(first, view);
+    uint record = (s % 2 == 0) ? pairs_x[index] : pairs_y[index];
+    return s < 2 ? decode_pair(vd, p, q, s == 0, record) : decode_pair(vd, q, p, s == 2, record);
+}
 
 vec4 load_antialiased(uint index) {
     vec4 a = vec4(0.0);

@@ -93,6 +93,9 @@ impl Marks<'_> {
 const MISSED_STARTS: usize = 7;
 /// As `TERMS_PER_LISTED` there.
 const TERMS_PER_LISTED: u32 = 3;
+/// Triangles a scene can hold: the pair records (`encode_pair` in
+/// `glsl/include/diff.glsl`) keep a triangle number in 28 bits.
+const MAX_TRIANGLES: usize = 1 << 28;
 /// Workgroups of the pose reduction's partial sums (at most).
 const POSE_GROUPS: u32 = 256;
 
@@ -284,7 +287,7 @@ pub struct DiffRenderer {
 impl DiffRenderer {
     pub fn new(ctx: &Context) -> Result<Self> {
         let pass_bytes = std::mem::size_of::<PassConstants>() as u32;
-        let bindings = [BindingKind::StorageBuffer; 19];
+        let bindings = [BindingKind::StorageBuffer; 21];
         Ok(Self {
             rasterizer: Rasterizer::new(ctx)?,
             classify: ComputePipeline::new(
@@ -413,6 +416,10 @@ pub struct Scene {
     /// Subgroups per 64-wide workgroup.
     subgroups: u32,
     ids: Buffer,
+    /// Each listed pixel's pairs with its right and lower neighbours, one word each
+    /// (`encode_pair` in `glsl/include/diff.glsl`), [view][y][x].
+    pairs_x: Buffer,
+    pairs_y: Buffer,
     loss: Loss,
     channels: u32,
 }
@@ -496,6 +503,12 @@ impl Scene {
         let (w, h, n) = (views.width(), views.height(), views.count());
         let pixels = w as u64 * h as u64 * n as u64;
         let vertices = desc.mesh.vertex_count() as u64;
+        if desc.mesh.triangle_count() >= MAX_TRIANGLES {
+            return Err(Error::Limit(format!(
+                "{} triangles: the pixel-pair records hold triangle numbers below {MAX_TRIANGLES}",
+                desc.mesh.triangle_count()
+            )));
+        }
         if desc.shading.is_some() && desc.attributes.is_some() {
             return Err(Error::InvalidInput(
                 "a scene compares either attributes or shading, not both".into(),
@@ -622,6 +635,8 @@ impl Scene {
             grid_groups,
             subgroups,
             ids: device("triangle ids", pixels * 4)?,
+            pairs_x: device("pixel pairs along x", pixels * 4)?,
+            pairs_y: device("pixel pairs along y", pixels * 4)?,
             mesh,
             views,
             loss: desc.loss,
@@ -675,7 +690,7 @@ impl Scene {
     }
 
     /// The bindings of the per-pixel passes (`glsl/include/diff_pass.glsl`).
-    fn pass_bindings(&self) -> [Binding<'_>; 19] {
+    fn pass_bindings(&self) -> [Binding<'_>; 21] {
         [
             Binding::buffer(self.mesh.positions()),
             Binding::buffer(self.mesh.triangles()),
@@ -696,6 +711,8 @@ impl Scene {
             Binding::buffer(&self.grad_camera_fixed),
             Binding::buffer(&self.grad_attributes_fixed),
             Binding::buffer(&self.boxes),
+            Binding::buffer(&self.pairs_x),
+            Binding::buffer(&self.pairs_y),
         ]
     }
 
@@ -848,9 +865,13 @@ impl Scene {
         rec.memory_barrier();
         marks.pass(rec, "work arguments");
 
-        rec.run_compute(&renderer.antialias, &bindings, &constants, work);
-        rec.memory_barrier();
-        marks.pass(rec, "antialias");
+        // The pairs (one walk each), then the antialiased image and its loss.
+        for stage in 0..2 {
+            let constants = PassConstants { stage, ..constants };
+            rec.run_compute(&renderer.antialias, &bindings, &constants, work);
+            rec.memory_barrier();
+            marks.pass(rec, ["pairs", "antialias"][stage as usize]);
+        }
 
         rec.run_compute(
             &renderer.finalize,
