@@ -24,9 +24,6 @@ use vkdr::register::{Job, Registrar};
 use vkdr::shape::ShapeSpace;
 use vkdr::Mesh;
 
-/// Codes closer than this to the +-3 bound count as on it.
-const AT_BOUND: f64 = 2.999;
-
 fn median(values: &mut [f64]) -> f64 {
     values.sort_by(f64::total_cmp);
     let n = values.len();
@@ -117,7 +114,7 @@ fn main() -> Result<()> {
                 let result =
                     registrar.register(&ctx, Job::new(&space, &mask, view), params, |_, _| {})?;
                 errors.push(error(&result.vertices));
-                on_bound += result.code.iter().any(|c| c.abs() >= AT_BOUND) as usize;
+                on_bound += (result.on_bound > 0) as usize;
                 // Iterations at the end whose code equals the one before: rejected steps.
                 let last = result.codes.last().cloned().unwrap_or_default();
                 let rejected = result

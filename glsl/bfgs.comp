@@ -5,11 +5,22 @@
 //
 // Each iteration has evaluated the loss and gradient at the current point x. If the loss
 // decreased enough (Armijo) the point is accepted: the inverse-Hessian estimate H takes
-// the BFGS update from the last accepted point, and the next point is x - H g (its length
-// capped). Otherwise the step back from the last accepted point is halved. The latent
-// code and the pose are thereby scaled against each other by the curvature the
-// iterations observe instead of by hand-set learning rates; H starts as a diagonal that
-// makes the first step of each part the configured length.
+// the BFGS update from the last accepted point, and the next point is the minimum of the
+// quadratic model on the face of the bounds (below), its length capped. Otherwise the step
+// back from the last accepted point is halved. The latent code and the pose are thereby
+// scaled against each other by the curvature the iterations observe instead of by
+// hand-set learning rates; H starts as a diagonal that makes the first step of each part
+// the configured length.
+//
+// The code is bounded to +-CODE_BOUND (training RMS deformations) by an active set, in
+// the manner of projected quasi-Newton methods (Bertsekas 1982; L-BFGS-B's subspace
+// step): a code coordinate on its bound whose gradient pushes outward is held (active),
+// and the free coordinates take the model's minimum with the active ones fixed,
+// d_F = -(B_FF)^-1 g_F, where B = H^-1: with u = H g_F (g zero on the active set),
+// d = -u + H[:, A] H_AA^-1 u_A, which is zero on A. The trial point is projected onto the
+// box. (Clamping x - H g instead, as before, moved the free coordinates along a direction
+// computed as if the clamped ones moved too; runs stalled at the bound, every step
+// rejected.)
 //
 // State layout (floats): see `register::State`; this shader uses the quasi-Newton region.
 #include "views.glsl"
@@ -53,6 +64,9 @@ uint pose_x_at() { return qn_at() + 14u; }
 uint accepted_at() { return qn_at() + 20u; }
 uint accepted_grad_at() { return accepted_at() + n(); }
 uint h_at() { return accepted_grad_at() + n(); }
+// Scratch (n x n): the Cholesky factor of H_AA.
+uint scratch_at() { return h_at() + n() * n(); }
+const float CODE_BOUND = 3.0;
 
 float x_at(uint i) { return i < pc.dims ? state[LATENT + i] : state[pose_x_at() + i - pc.dims]; }
 void set_x(uint i, float v) {
@@ -88,6 +102,72 @@ bool moves(uint i) {
     if (i < pc.dims) return pc.pose_only == 0u;
     if (pc.pose_every == 0u) return false;
     return i != pc.dims + 2u || pc.optimize_z != 0u;
+}
+
+// Whether code coordinate i is held on its bound: there, with the gradient pushing out.
+bool held(uint i, float gi) {
+    if (i >= pc.dims) return false;
+    float x = x_at(i);
+    return (x >= CODE_BOUND && gi < 0.0) || (x <= -CODE_BOUND && gi > 0.0);
+}
+
+float l(uint i, uint j) { return state[scratch_at() + i * n() + j]; }
+void set_l(uint i, uint j, float v) { state[scratch_at() + i * n() + j] = v; }
+
+// The step direction at the accepted point x with gradient g (see the top): -H g where
+// nothing is active, else the minimum of the quadratic model with the active coordinates
+// held. Should H_AA not factor (rounding), the direction is -H g_F with d_A = 0.
+void direction(float g[MAX_N], out float d[MAX_N]) {
+    uint count = n();
+    uint act[MAX_N];
+    uint k = 0u;
+    float gf[MAX_N];
+    for (uint i = 0u; i < count; ++i) {
+        bool on_bound = held(i, g[i]);
+        gf[i] = on_bound ? 0.0 : g[i];
+        if (on_bound) act[k++] = i;
+    }
+    float u[MAX_N];
+    for (uint i = 0u; i < count; ++i) {
+        u[i] = 0.0;
+        for (uint j = 0u; j < count; ++j) u[i] += h(i, j) * gf[j];
+        d[i] = -u[i];
+    }
+    if (k == 0u) return;
+    // Cholesky H_AA = L L^T in the scratch region, then lambda = H_AA^-1 u_A.
+    bool factored = true;
+    for (uint a = 0u; a < k && factored; ++a) {
+        for (uint b = 0u; b <= a; ++b) {
+            float v = h(act[a], act[b]);
+            for (uint c = 0u; c < b; ++c) v -= l(a, c) * l(b, c);
+            if (a == b) {
+                if (v <= 0.0) {
+                    factored = false;
+                    break;
+                }
+                set_l(a, a, sqrt(v));
+            } else {
+                set_l(a, b, v / l(b, b));
+            }
+        }
+    }
+    float lambda[MAX_N];
+    if (factored) {
+        for (uint a = 0u; a < k; ++a) {
+            float v = u[act[a]];
+            for (uint c = 0u; c < a; ++c) v -= l(a, c) * lambda[c];
+            lambda[a] = v / l(a, a);
+        }
+        for (uint a = k; a-- > 0u;) {
+            float v = lambda[a];
+            for (uint c = a + 1u; c < k; ++c) v -= l(c, a) * lambda[c];
+            lambda[a] = v / l(a, a);
+        }
+        for (uint i = 0u; i < count; ++i) {
+            for (uint a = 0u; a < k; ++a) d[i] += h(i, act[a]) * lambda[a];
+        }
+    }
+    for (uint a = 0u; a < k; ++a) d[act[a]] = 0.0;
 }
 
 void main() {
@@ -174,14 +254,12 @@ void main() {
         state[accepted_loss_at()] = loss;
         state[halvings_at()] = 0.0;
 
-        // Next point: x - H g, each part's step at most twice its first length.
+        // Next point: the model's minimum on the face, each part's step at most twice
+        // its first length.
         float d[MAX_N];
+        direction(g, d);
         float lengths[3] = float[3](0.0, 0.0, 0.0);
-        for (uint i = 0u; i < count; ++i) {
-            d[i] = 0.0;
-            for (uint j = 0u; j < count; ++j) d[i] -= h(i, j) * g[j];
-            lengths[part_of(i)] += d[i] * d[i];
-        }
+        for (uint i = 0u; i < count; ++i) lengths[part_of(i)] += d[i] * d[i];
         float scale = 1.0;
         for (uint p = 0u; p < 3u; ++p) {
             float cap = 2.0 * steps[p];
@@ -195,8 +273,8 @@ void main() {
         }
         state[halvings_at()] += 1.0;
     }
-    // Codes stay within 3 units (training RMS deformations) of the mean shape.
-    for (uint i = 0u; i < pc.dims; ++i) state[LATENT + i] = clamp(state[LATENT + i], -3.0, 3.0);
+    // The trial point projected onto the box (halving towards an accepted point stays in it).
+    for (uint i = 0u; i < pc.dims; ++i) state[LATENT + i] = clamp(state[LATENT + i], -CODE_BOUND, CODE_BOUND);
     // The code after this iteration is the best found so far.
     for (uint j = 0u; j < pc.dims; ++j) {
         if (t < pc.max_iterations) state[codes_at() + t * pc.dims + j] = state[accepted_at() + j];

@@ -293,6 +293,10 @@ pub struct Trial {
     /// translation (metres).
     pub rotation_error: f64,
     pub translation_error: f64,
+    /// Code coordinates the optimiser ended with on its bound, with the pose known and
+    /// with pose noise ([`Registration::on_bound`](crate::register::Registration)).
+    pub known_pose_on_bound: usize,
+    pub pose_noise_on_bound: usize,
 }
 
 /// Angle (radians, 0 to pi/2) between the line of sight from the camera to the object's
@@ -426,6 +430,7 @@ pub fn evaluate_instance(
 
         let result = registrar.register(ctx, job(view), &known_pose, |_, _| {})?;
         let known_error = error(&result.vertices);
+        let known_on_bound = result.on_bound;
         known_ch.push(chamfer(&test_vertices, &result.vertices));
         iterations.push(result.iterations as f64);
         ms.push(result.milliseconds);
@@ -469,6 +474,8 @@ pub fn evaluate_instance(
             pose_noise_placed: error(&placed_like(&result.vertices, &oracle_vertices)),
             rotation_error,
             translation_error,
+            known_pose_on_bound: known_on_bound,
+            pose_noise_on_bound: result.on_bound,
         });
         noisy_ch.push(chamfer(&test_vertices, &result.vertices));
         noise_iterations.push(result.iterations as f64);

@@ -173,7 +173,8 @@ impl State {
         Self::losses(dims) + iterations
     }
     /// The quasi-Newton region: accepted loss, halvings, R0 (9), t0 (3), the pose part of
-    /// x (6), the accepted x (dims + 6), its gradient (dims + 6), H ((dims + 6)^2).
+    /// x (6), the accepted x (dims + 6), its gradient (dims + 6), H ((dims + 6)^2), scratch
+    /// for the active set's factor ((dims + 6)^2).
     fn quasi_newton(dims: usize, iterations: usize) -> usize {
         Self::codes(dims, iterations) + iterations * dims
     }
@@ -189,7 +190,7 @@ impl State {
     }
     fn len(dims: usize, iterations: usize) -> usize {
         let n = dims + 6;
-        Self::accepted(dims, iterations) + 2 * n + n * n
+        Self::accepted(dims, iterations) + 2 * n + 2 * n * n
     }
 }
 
@@ -234,7 +235,15 @@ pub struct Registration {
     pub codes: Vec<Vec<f64>>,
     pub iterations: usize,
     pub milliseconds: f64,
+    /// Code coordinates on the optimiser's bound at the end (+-[`CODE_BOUND`] in its
+    /// coordinates).
+    pub on_bound: usize,
 }
+
+/// The optimisers keep each code coordinate (in their own units, see
+/// `optimizer_coordinates`) within this many units of the mean shape, as
+/// `glsl/optimizer.comp` and `glsl/bfgs.comp` do.
+pub const CODE_BOUND: f64 = 3.0;
 
 impl Registrar {
     pub fn new(ctx: &Context) -> Result<Self> {
@@ -694,9 +703,9 @@ impl<'a> Task<'a> {
         let values = self
             .state
             .read_range::<f32>(0, State::len(k, params.iterations))?;
-        let (code, pose) = match params.optimizer {
+        let (coordinates, pose) = match params.optimizer {
             Optimizer::Sgd | Optimizer::Adam => (
-                self.code(&values[State::LATENT..State::LATENT + k]),
+                &values[State::LATENT..State::LATENT + k],
                 read_pose(self.scene.views())?,
             ),
             // The last accepted point (the current one is a step not yet evaluated).
@@ -716,9 +725,14 @@ impl<'a> Task<'a> {
                 } else {
                     read_pose(self.scene.views())?
                 };
-                (self.code(&values[at..at + k]), pose)
+                (&values[at..at + k], pose)
             }
         };
+        let code = self.code(coordinates);
+        let on_bound = coordinates
+            .iter()
+            .filter(|z| z.abs() as f64 >= CODE_BOUND)
+            .count();
         let losses = values[State::losses(k)..State::losses(k) + self.done]
             .iter()
             .map(|&l| l as f64)
@@ -735,6 +749,7 @@ impl<'a> Task<'a> {
             codes,
             iterations: self.done,
             milliseconds: self.milliseconds,
+            on_bound,
         })
     }
 }
@@ -829,9 +844,11 @@ mod tests {
         accepted_loss: f64,
         h: Vec<Vec<f64>>,
         t: usize,
-        /// How often a step was capped and how often one was halved.
+        /// How often a step was capped, how often one was halved, and how often a
+        /// direction held a code coordinate on its bound.
         capped: usize,
         halved: usize,
+        held: usize,
     }
 
     impl BfgsReference {
@@ -848,7 +865,56 @@ mod tests {
                 t: 0,
                 capped: 0,
                 halved: 0,
+                held: 0,
             }
+        }
+
+        /// The model's minimum with the code coordinates on their bound (gradient
+        /// pushing out) held: d = -u + H[:, A] H_AA^-1 u_A, u = H g_F.
+        fn direction(&mut self, g: &[f64]) -> Vec<f64> {
+            let n = self.x.len();
+            let held: Vec<usize> = (0..self.dims)
+                .filter(|&i| (self.x[i] >= 3.0 && g[i] < 0.0) || (self.x[i] <= -3.0 && g[i] > 0.0))
+                .collect();
+            let free_g: Vec<f64> = (0..n)
+                .map(|i| if held.contains(&i) { 0.0 } else { g[i] })
+                .collect();
+            let u: Vec<f64> = (0..n)
+                .map(|i| (0..n).map(|j| self.h[i][j] * free_g[j]).sum())
+                .collect();
+            let mut d: Vec<f64> = u.iter().map(|v| -v).collect();
+            if held.is_empty() {
+                return d;
+            }
+            self.held += 1;
+            use crate::cpd::linalg::{solve, Matrix};
+            let k = held.len();
+            let h_aa = Matrix {
+                rows: k,
+                cols: k,
+                data: held
+                    .iter()
+                    .flat_map(|&a| held.iter().map(move |&b| (a, b)))
+                    .map(|(a, b)| self.h[a][b])
+                    .collect(),
+            };
+            let u_a = Matrix {
+                rows: k,
+                cols: 1,
+                data: held.iter().map(|&i| u[i]).collect(),
+            };
+            let lambda = solve(h_aa, u_a).unwrap().data;
+            for (i, di) in d.iter_mut().enumerate() {
+                *di += held
+                    .iter()
+                    .zip(&lambda)
+                    .map(|(&a, l)| self.h[i][a] * l)
+                    .sum::<f64>();
+            }
+            for &a in &held {
+                d[a] = 0.0;
+            }
+            d
         }
 
         fn part(&self, i: usize) -> usize {
@@ -897,9 +963,7 @@ mod tests {
                 self.accepted = self.x.clone();
                 self.accepted_grad = g.clone();
                 self.accepted_loss = loss;
-                let d: Vec<f64> = (0..n)
-                    .map(|i| -(0..n).map(|j| self.h[i][j] * g[j]).sum::<f64>())
-                    .collect();
+                let d = self.direction(&g);
                 let mut lengths = [0.0; 3];
                 for (i, di) in d.iter().enumerate() {
                     lengths[self.part(i)] += di * di;
@@ -942,9 +1006,26 @@ mod tests {
     /// The quasi-Newton shader against its float64 reference on a quadratic loss over the
     /// code and the pose offsets (fed to the shader as the renderer would: the rotation
     /// gradient for a left increment of the current rotation), step by step, and the pose
-    /// it writes into the view.
+    /// it writes into the view: once with the optimum inside the code bounds, once with
+    /// the first code coordinate's optimum past its bound.
     #[test]
     fn bfgs_shader_matches_a_float64_reference() {
+        let inside = bfgs_case(None);
+        assert!(
+            inside.capped > 0 && inside.halved > 0,
+            "capped {} and halved {} steps",
+            inside.capped,
+            inside.halved
+        );
+        let bounded = bfgs_case(Some(3.4));
+        assert!(bounded.held > 0, "no step held a coordinate on its bound");
+        assert_eq!(bounded.accepted[0], 3.0);
+    }
+
+    /// One run of [`bfgs_shader_matches_a_float64_reference`], with the first code
+    /// coordinate's optimum at `code_target` if given; checks every step, convergence to
+    /// the (constrained) minimum and the view, and returns the reference's final state.
+    fn bfgs_case(code_target: Option<f64>) -> BfgsReference {
         let options = crate::gpu::ContextOptions {
             validation: true,
             ..Default::default()
@@ -974,6 +1055,7 @@ mod tests {
             .collect();
         let target = {
             let mut t = target;
+            t[0] = code_target.unwrap_or(t[0]);
             t[k + 2] = 0.0;
             t
         };
@@ -1088,18 +1170,20 @@ mod tests {
             ctx.submit_and_wait(rec).unwrap();
             reference.step(loss, g);
         }
-        // Both branches of the shader ran, it converges, and the view holds the pose of the
-        // last point.
-        assert!(
-            reference.capped > 0 && reference.halved > 0,
-            "capped {} and halved {} steps",
-            reference.capped,
-            reference.halved
-        );
+        // It converges to the constrained minimum: the projected gradient (zero where a
+        // code coordinate's bound holds it, and for the fixed z) vanishes.
+        let projected = |x: &[f64]| {
+            let (_, g) = evaluate(x);
+            (0..n)
+                .filter(|&i| i != k + 2)
+                .filter(|&i| !(i < k && (x[i] >= 3.0 && g[i] < 0.0 || x[i] <= -3.0 && g[i] > 0.0)))
+                .map(|i| g[i] * g[i])
+                .sum::<f64>()
+                .sqrt()
+        };
+        let (first, last) = (projected(&vec![0.0; n]), projected(&reference.accepted));
+        assert!(last < 1e-3 * first, "projected gradient {first} -> {last}");
         let x = read_x(&state);
-        let (first, _) = evaluate(&vec![0.0; n]);
-        let (last, _) = evaluate(&reference.accepted);
-        assert!(last < 1e-3 * first, "loss {first} -> {last}");
         let pose = read_pose(&views).unwrap();
         let w = DVec3::new(x[k + 3], x[k + 4], x[k + 5]);
         let want_r = DMat3::from_quat(glam::DQuat::from_scaled_axis(w)) * start.rotation_matrix();
@@ -1112,6 +1196,7 @@ mod tests {
         let off = dr.x_axis.length() + dr.y_axis.length() + dr.z_axis.length();
         assert!(off < 1e-4, "rotation off by {off}");
         ctx.check_validation().unwrap();
+        reference
     }
 
     /// BFGS's code coordinates: the columns of B A are orthogonal in vertex space, each as

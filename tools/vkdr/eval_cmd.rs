@@ -309,12 +309,12 @@ fn view_table(rows: &[Row]) -> String {
 /// One line per trial: the view, the errors, and the pose error with pose noise.
 fn trials_csv(rows: &[Row]) -> String {
     let mut csv = String::from(
-        "category,instance,trial,azimuth_deg,elevation_deg,long_axis_angle_deg,short_axis_angle_deg,known_pose,pose_noise,pose_noise_placed,rotation_error_deg,translation_error\n",
+        "category,instance,trial,azimuth_deg,elevation_deg,long_axis_angle_deg,short_axis_angle_deg,known_pose,pose_noise,pose_noise_placed,rotation_error_deg,translation_error,known_pose_on_bound,pose_noise_on_bound\n",
     );
     for r in rows {
         for (i, t) in r.trials.iter().enumerate() {
             csv.push_str(&format!(
-                "{},{},{i},{:.2},{:.2},{:.2},{:.2},{:e},{:e},{:e},{:.3},{:e}\n",
+                "{},{},{i},{:.2},{:.2},{:.2},{:.2},{:e},{:e},{:e},{:.3},{:e},{},{}\n",
                 r.category,
                 r.instance,
                 t.azimuth.to_degrees(),
@@ -326,6 +326,8 @@ fn trials_csv(rows: &[Row]) -> String {
                 t.pose_noise_placed,
                 t.rotation_error.to_degrees(),
                 t.translation_error,
+                t.known_pose_on_bound,
+                t.pose_noise_on_bound,
             ));
         }
     }
