@@ -128,6 +128,10 @@ struct CpdArgs {
     w: f64,
     #[arg(long, default_value_t = CpdParams::default().max_iterations)]
     max_iterations: usize,
+    /// Stop when sigma^2 changes by less than this fraction of its initial value in one
+    /// iteration.
+    #[arg(long, default_value_t = CpdParams::default().tolerance)]
+    tolerance: f64,
     /// Replace the kernel by its Nystrom approximation from this many landmarks (faster,
     /// approximate); by default the M-step uses the exact kernel.
     #[arg(long)]
@@ -141,8 +145,8 @@ impl CpdArgs {
             lambda: self.lambda,
             w: self.w,
             max_iterations: self.max_iterations,
+            tolerance: self.tolerance,
             rank: self.rank,
-            ..Default::default()
         }
     }
 }
