@@ -34,7 +34,7 @@ const DENOMINATOR: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/cpd_denomin
 const ACCUMULATE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/cpd_accumulate.comp.spv"));
 const GAUSS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/gauss_product.comp.spv"));
 /// Points served per invocation by the passes above (`ROWS` in `glsl/include/cpd.glsl`).
-const ROWS: u32 = 4;
+const ROWS: u32 = 8;
 
 /// CPD settings (defaults as in the paper and pycpd: beta = 2, lambda = 2, w = 0.1).
 #[derive(Clone, Copy, Debug, PartialEq)]
