@@ -19,8 +19,7 @@
 // d_F = -(B_FF)^-1 g_F, where B = H^-1: with u = H g_F (g zero on the active set),
 // d = -u + H[:, A] H_AA^-1 u_A, which is zero on A. The trial point is projected onto the
 // box. (Clamping x - H g instead, as before, moved the free coordinates along a direction
-// computed as if the clamped ones moved too; runs stalled at the bound, every step
-// rejected.)
+// computed as if the clamped ones moved too.)
 //
 // State layout (floats): see `register::State`; this shader uses the quasi-Newton region.
 #include "views.glsl"
