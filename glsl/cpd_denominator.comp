@@ -1,22 +1,26 @@
 #version 460
-// CPD E-step, pass 1: per target point n, log(sum_m exp(-|x_n - t_m|^2 / (2 s2)) + c):
-// the largest exponent first (no exponentials), then the sum relative to it.
+// CPD E-step, pass 1: per target point n, log(sum_m exp(-|x_n - t_m|^2 / (2 s2)) + c),
+// one span of the moving points per dispatch. The running sum is kept relative to the
+// largest exponent seen so far, (top, sum) in `running`: each span finds its own largest
+// exponent first (no exponentials), rescales the sum so far to the new top once, and adds
+// its terms. The last span writes the logarithm.
 #include "cpd.glsl"
 
 layout(set = 0, binding = 0, std430) readonly buffer Moving { vec4 moving[]; };  // t_m
 layout(set = 0, binding = 1, std430) readonly buffer Target { vec4 target[]; };  // x_n
 layout(set = 0, binding = 2, std430) writeonly buffer LogDen { float log_den[]; };
+layout(set = 0, binding = 3, std430) buffer Running { vec2 running[]; };  // (top, sum)
 
 void main() {
     uint lane = gl_SubgroupInvocationID;
     vec3 x[ROWS];
-    float nearest[ROWS];  // smallest squared distance
+    float nearest[ROWS];  // smallest squared distance in this span
     for (uint r = 0u; r < ROWS; ++r) {
         x[r] = target[min(row(r), pc.n - 1u)].xyz;
         nearest[r] = 3.4e38;
     }
-    for (uint base = 0u; base < pc.m; base += gl_SubgroupSize) {
-        vec3 t = moving[min(base + lane, pc.m - 1u)].xyz;
+    for (uint base = pc.first; base < pc.end; base += gl_SubgroupSize) {
+        vec3 t = moving[min(base + lane, pc.end - 1u)].xyz;
         for (uint k = 0u; k < gl_SubgroupSize; ++k) {
             vec3 tk = subgroupShuffle(t, k);  // a clamped index repeats the last point
             for (uint r = 0u; r < ROWS; ++r) {
@@ -28,11 +32,17 @@ void main() {
     float top[ROWS], sum[ROWS];
     for (uint r = 0u; r < ROWS; ++r) {
         top[r] = max(-nearest[r] * pc.inv_two_sigma2, pc.log_c);
-        sum[r] = exp(pc.log_c - top[r]);
+        if (pc.first == 0u) {
+            sum[r] = exp(pc.log_c - top[r]);
+        } else {
+            vec2 before = running[min(row(r), pc.n - 1u)];
+            top[r] = max(top[r], before.x);
+            sum[r] = before.y * exp(before.x - top[r]);
+        }
     }
-    for (uint base = 0u; base < pc.m; base += gl_SubgroupSize) {
-        vec3 t = moving[min(base + lane, pc.m - 1u)].xyz;
-        bool real = base + lane < pc.m;
+    for (uint base = pc.first; base < pc.end; base += gl_SubgroupSize) {
+        vec3 t = moving[min(base + lane, pc.end - 1u)].xyz;
+        bool real = base + lane < pc.end;
         for (uint k = 0u; k < gl_SubgroupSize; ++k) {
             vec3 tk = subgroupShuffle(t, k);
             bool counts = subgroupShuffle(real, k);
@@ -44,6 +54,8 @@ void main() {
         }
     }
     for (uint r = 0u; r < ROWS; ++r) {
-        if (row(r) < pc.n) log_den[row(r)] = top[r] + log(sum[r]);
+        if (row(r) >= pc.n) continue;
+        running[row(r)] = vec2(top[r], sum[r]);
+        if (pc.end == pc.m) log_den[row(r)] = top[r] + log(sum[r]);
     }
 }

@@ -246,7 +246,8 @@ fn millimetres_as_well_as_metres() {
     );
 }
 
-/// A target of 1e5 points (the E-step's work is M x N; M is kept small for CI).
+/// A target of 1e5 points (the E-step's work is M x N; M is kept small for CI). The run
+/// checks sum P1 = sum Pt1 every iteration, which a device that dropped terms fails.
 #[test]
 fn a_target_of_1e5_points() {
     let source = points(64, 12, 1.0);
@@ -260,6 +261,54 @@ fn a_target_of_1e5_points() {
         },
     );
     assert_eq!(result.iterations, 3);
+}
+
+/// The device E-step where the other set spans many dispatches (`cpd::SPAN`): 7e4 source
+/// points onto 96 targets (the denominators loop over the sources) and 96 onto 7e4 (the
+/// sums loop over the targets), against float64. A single loop over 7e4 points is what
+/// lavapipe cuts short (65535 iterations per invocation): its sums missed two thirds of
+/// the terms at 4e4.
+#[test]
+fn e_step_over_many_spans_matches_float64() {
+    use vkdr::cpd::{reference::ReferenceBackend, Backend, GpuBackend};
+    let ctx = common::context();
+    let pipelines = CpdPipelines::new(&ctx).unwrap();
+    let (many, few) = (70_000, 96);
+    for (m, n) in [(many, few), (few, many)] {
+        let source = points(m, 41, 1.0);
+        let target: Vec<DVec3> = points(n, 42, 1.0)
+            .into_iter()
+            .map(|p| smooth(p, 0.1))
+            .collect();
+        let (sigma2, log_c) = (0.05, -3.0);
+        let mut device = GpuBackend::new(&ctx, &pipelines, &source, &target, 1.0).unwrap();
+        let got = device.expectation(&source, sigma2, log_c).unwrap();
+        let want = ReferenceBackend::new(&source, &target, 1.0)
+            .expectation(&source, sigma2, log_c)
+            .unwrap();
+        let close = |a: f64, b: f64, scale: f64| (a - b).abs() <= 1e-4 * scale + 1e-6;
+        let p1_scale = want.p1.iter().copied().fold(0.0, f64::max);
+        for i in 0..m {
+            assert!(
+                close(got.p1[i], want.p1[i], p1_scale)
+                    && (got.px[i] - want.px[i]).length() <= 1e-4 * p1_scale + 1e-6,
+                "{m} onto {n}: source {i}: P1 {} PX {} against {} {}",
+                got.p1[i],
+                got.px[i],
+                want.p1[i],
+                want.px[i]
+            );
+        }
+        for j in 0..n {
+            assert!(
+                close(got.pt1[j], want.pt1[j], 1.0),
+                "{m} onto {n}: target {j}: Pt1 {} against {}",
+                got.pt1[j],
+                want.pt1[j]
+            );
+        }
+    }
+    common::assert_no_validation_errors(&ctx);
 }
 
 #[test]
@@ -321,6 +370,47 @@ fn kernel_product_matches_float64() {
         worst <= 1e-4 * scale,
         "kernel product off by {worst} (scale {scale})"
     );
+    common::assert_no_validation_errors(&ctx);
+}
+
+/// The kernel product over 6e4 points (eight spans; one loop over them all is what
+/// lavapipe cuts short), against float64 on every 97th row.
+#[test]
+fn kernel_product_over_many_spans_matches_float64() {
+    use vkdr::cpd::{linalg::Matrix, Backend, GpuBackend};
+    let ctx = common::context();
+    let pipelines = CpdPipelines::new(&ctx).unwrap();
+    let m = 60_000;
+    let y = points(m, 51, 2.0);
+    let beta = 0.3;
+    let mut backend = GpuBackend::new(&ctx, &pipelines, &y, &y, beta).unwrap();
+    let v = Matrix {
+        rows: m,
+        cols: 3,
+        data: (0..3 * m)
+            .map(|i| ((i * 7919) % 101) as f64 / 50.0 - 1.0)
+            .collect(),
+    };
+    let got = backend.kernel_product(&v).unwrap();
+    let inv = 1.0 / (2.0 * beta * beta);
+    for i in (0..m).step_by(97) {
+        let mut want = [0.0; 3];
+        let mut magnitude = 0.0;
+        for (j, q) in y.iter().enumerate() {
+            let k = (-(y[i] - *q).length_squared() * inv).exp();
+            magnitude += k;
+            for (c, w) in want.iter_mut().enumerate() {
+                *w += k * v.at(j, c);
+            }
+        }
+        for (c, w) in want.iter().enumerate() {
+            assert!(
+                (got.at(i, c) - w).abs() <= 1e-4 * magnitude,
+                "row {i} column {c}: {} against {w} (sum of the kernel {magnitude})",
+                got.at(i, c)
+            );
+        }
+    }
     common::assert_no_validation_errors(&ctx);
 }
 

@@ -13,6 +13,13 @@
 // lavapipe, 4 rows ran 3x faster than 1; 8 rows another 1.2x at 2000 points, seven
 // interleaved runs of `vkdr cpd`, whole process 0.64 -> 0.52 s median; 16 no faster. A GPU
 // keeps 8 x 64 points per workgroup busy from a few thousand points up).
+//
+// One dispatch loops over one span [first, end) of the other set, and the host runs a
+// dispatch per span, in order, each carrying on from the last one's partial sums. That
+// bounds the loop iterations of one invocation, which lavapipe needs: llvmpipe stops every
+// shader invocation's loops, silently, after 65535 iterations all loops together
+// (LP_MAX_TGSI_LOOP_ITERATIONS in Mesa's gallivm), and a single loop over 4e4 points
+// summed less than a third of them. The span is `SPAN` in src/cpd/mod.rs.
 #extension GL_KHR_shader_subgroup_shuffle : require
 
 layout(local_size_x = 64) in;
@@ -20,6 +27,8 @@ layout(local_size_x = 64) in;
 layout(push_constant, std430) uniform Constants {
     uint m;                // moving (source) points
     uint n;                // target points
+    uint first;            // this dispatch's span of the other set: [first, end)
+    uint end;
     float inv_two_sigma2;  // 1 / (2 s2)
     float log_c;           // log of the outlier term c
 } pc;

@@ -35,6 +35,19 @@ const ACCUMULATE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/cpd_accumula
 const GAUSS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/gauss_product.comp.spv"));
 /// Points served per invocation by the passes above (`ROWS` in `glsl/include/cpd.glsl`).
 const ROWS: u32 = 8;
+/// Points of the other set one dispatch of those passes loops over. llvmpipe ends every
+/// invocation's loops, silently, after 65535 iterations all loops together (Mesa's
+/// `LP_MAX_TGSI_LOOP_ITERATIONS`); a span costs an invocation about 10 iterations per 8
+/// points and loop (two loops in the denominator pass), some 2e4 in all. The same span on
+/// every driver keeps every driver's sums in the same order.
+pub const SPAN: u32 = 8192;
+
+/// The spans [first, end) of `count` points, [`SPAN`] at a time.
+fn spans(count: u32) -> impl Iterator<Item = (u32, u32)> {
+    (0..count)
+        .step_by(SPAN as usize)
+        .map(move |first| (first, count.min(first + SPAN)))
+}
 
 /// CPD settings (defaults as in the paper and pycpd: beta = 2, lambda = 2, w = 0.1).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -183,6 +196,7 @@ pub fn run(
             + (params.w / (1.0 - params.w)).ln()
             + (m as f64 / n as f64).ln();
         let e = backend.expectation(&moving, sigma2, log_c)?;
+        check_expectation(&e)?;
         // M-step: (dP1 G + lambda sigma^2 I) W = PX - dP1 Y.
         let solved = m_step.solve(backend, &e, source, params.lambda * sigma2, &mut w, &mut gw)?;
         products += solved.products;
@@ -229,6 +243,21 @@ pub fn run(
     })
 }
 
+/// Sum P1 and sum Pt1 both add up every P_mn, once by source and once by target: a
+/// device that dropped terms (a driver's loop limit, a lost dispatch) shows as a mismatch.
+fn check_expectation(e: &Expectation) -> Result<()> {
+    let by_source: f64 = e.p1.iter().sum();
+    let by_target: f64 = e.pt1.iter().sum();
+    let allowed = 1e-3 * by_source.max(by_target) + 1e-5 * e.pt1.len() as f64;
+    if (by_source - by_target).abs() <= allowed {
+        return Ok(());
+    }
+    Err(Error::Limit(format!(
+        "CPD's E-step does not add up: sum P1 = {by_source:e} but sum Pt1 = {by_target:e} \
+         (the device dropped terms)"
+    )))
+}
+
 fn check_points(points: &[DVec3], what: &str) -> Result<()> {
     if points.is_empty() {
         return Err(Error::InvalidInput(format!(
@@ -249,6 +278,8 @@ fn check_points(points: &[DVec3], what: &str) -> Result<()> {
 struct EstepConstants {
     m: u32,
     n: u32,
+    first: u32,
+    end: u32,
     inv_two_sigma2: f32,
     log_c: f32,
 }
@@ -268,17 +299,17 @@ impl CpdPipelines {
                 ctx,
                 "cpd denominator",
                 &spirv(DENOMINATOR)?,
-                &[b; 3],
-                16,
+                &[b; 4],
+                24,
             )?,
             accumulate: ComputePipeline::new(
                 ctx,
                 "cpd accumulate",
                 &spirv(ACCUMULATE)?,
                 &[b; 4],
-                16,
+                24,
             )?,
-            gauss: ComputePipeline::new(ctx, "gauss product", &spirv(GAUSS)?, &[b; 3], 16)?,
+            gauss: ComputePipeline::new(ctx, "gauss product", &spirv(GAUSS)?, &[b; 3], 24)?,
         })
     }
 }
@@ -305,6 +336,7 @@ pub struct GpuBackend<'a> {
     n: usize,
     moving: Buffer,
     log_den: Buffer,
+    running: Buffer,
     sums: Buffer,
     source_points: Buffer,
     columns: Buffer,
@@ -332,6 +364,7 @@ impl<'a> GpuBackend<'a> {
             n: target.len(),
             moving: device("cpd moving", m * 16)?,
             log_den: device("cpd log denominators", n * 4)?,
+            running: device("cpd running sums", n * 8)?,
             sums: device("cpd sums", m * 16)?,
             source_points: Buffer::from_slice(ctx, "cpd source", &vec4s(source, offset))?,
             columns: device("kernel columns", m * 16)?,
@@ -347,6 +380,8 @@ impl Backend for GpuBackend<'_> {
         let constants = EstepConstants {
             m,
             n,
+            first: 0,
+            end: 0,
             inv_two_sigma2: (0.5 / sigma2) as f32,
             log_c: log_c as f32,
         };
@@ -357,28 +392,42 @@ impl Backend for GpuBackend<'_> {
         }
         let p = self.pipelines;
         let mut rec = Recorder::new(self.ctx)?;
-        rec.run_compute(
-            &p.denominator,
-            &[
-                Binding::buffer(&self.moving),
-                Binding::buffer(&self.target),
-                Binding::buffer(&self.log_den),
-            ],
-            &constants,
-            Groups::Count(n.div_ceil(64 * ROWS), 1, 1),
-        );
-        rec.memory_barrier();
-        rec.run_compute(
-            &p.accumulate,
-            &[
-                Binding::buffer(&self.moving),
-                Binding::buffer(&self.target),
-                Binding::buffer(&self.log_den),
-                Binding::buffer(&self.sums),
-            ],
-            &constants,
-            Groups::Count(m.div_ceil(64 * ROWS), 1, 1),
-        );
+        for (first, end) in spans(m) {
+            rec.run_compute(
+                &p.denominator,
+                &[
+                    Binding::buffer(&self.moving),
+                    Binding::buffer(&self.target),
+                    Binding::buffer(&self.log_den),
+                    Binding::buffer(&self.running),
+                ],
+                &EstepConstants {
+                    first,
+                    end,
+                    ..constants
+                },
+                Groups::Count(n.div_ceil(64 * ROWS), 1, 1),
+            );
+            rec.memory_barrier();
+        }
+        for (first, end) in spans(n) {
+            rec.run_compute(
+                &p.accumulate,
+                &[
+                    Binding::buffer(&self.moving),
+                    Binding::buffer(&self.target),
+                    Binding::buffer(&self.log_den),
+                    Binding::buffer(&self.sums),
+                ],
+                &EstepConstants {
+                    first,
+                    end,
+                    ..constants
+                },
+                Groups::Count(m.div_ceil(64 * ROWS), 1, 1),
+            );
+            rec.memory_barrier();
+        }
         self.ctx.submit_and_wait(rec)?;
         let sums = self.sums.read_range::<[f32; 4]>(0, m as usize)?;
         let log_den = self.log_den.read_range::<f32>(0, n as usize)?;
@@ -405,6 +454,8 @@ impl Backend for GpuBackend<'_> {
         let constants = EstepConstants {
             m: m as u32,
             n: m as u32,
+            first: 0,
+            end: 0,
             inv_two_sigma2: (0.5 / (self.beta * self.beta)) as f32,
             log_c: 0.0,
         };
@@ -424,16 +475,23 @@ impl Backend for GpuBackend<'_> {
             self.columns.write(0, &columns)?;
             let p = self.pipelines;
             let mut rec = Recorder::new(self.ctx)?;
-            rec.run_compute(
-                &p.gauss,
-                &[
-                    Binding::buffer(&self.source_points),
-                    Binding::buffer(&self.columns),
-                    Binding::buffer(&self.product),
-                ],
-                &constants,
-                Groups::Count((m as u32).div_ceil(64 * ROWS), 1, 1),
-            );
+            for (first, end) in spans(m as u32) {
+                rec.run_compute(
+                    &p.gauss,
+                    &[
+                        Binding::buffer(&self.source_points),
+                        Binding::buffer(&self.columns),
+                        Binding::buffer(&self.product),
+                    ],
+                    &EstepConstants {
+                        first,
+                        end,
+                        ..constants
+                    },
+                    Groups::Count((m as u32).div_ceil(64 * ROWS), 1, 1),
+                );
+                rec.memory_barrier();
+            }
             self.ctx.submit_and_wait(rec)?;
             let product = self.product.read_range::<[f32; 4]>(0, m)?;
             for (i, row) in product.iter().enumerate() {

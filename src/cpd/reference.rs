@@ -15,6 +15,18 @@ pub struct ReferenceBackend {
     kernel: Option<Matrix>,
 }
 
+impl ReferenceBackend {
+    /// The backend for source `source` (kernel width `beta`) and target `target`.
+    pub fn new(source: &[DVec3], target: &[DVec3], beta: f64) -> Self {
+        Self {
+            source: source.to_vec(),
+            target: target.to_vec(),
+            beta,
+            kernel: None,
+        }
+    }
+}
+
 impl Backend for ReferenceBackend {
     fn expectation(&mut self, moving: &[DVec3], sigma2: f64, log_c: f64) -> Result<Expectation> {
         let (m, n) = (moving.len(), self.target.len());
@@ -55,13 +67,6 @@ fn log_sum_exp(top: f64, exponents: &[f64], log_c: f64) -> f64 {
 
 /// Registers with the float64 reference backend.
 pub fn register(source: &[DVec3], target: &[DVec3], params: &CpdParams) -> Result<CpdResult> {
-    let make = |y: &[DVec3], x: &[DVec3]| {
-        Ok(ReferenceBackend {
-            source: y.to_vec(),
-            target: x.to_vec(),
-            beta: params.beta,
-            kernel: None,
-        })
-    };
+    let make = |y: &[DVec3], x: &[DVec3]| Ok(ReferenceBackend::new(y, x, params.beta));
     super::run_normalized(make, source, target, params, &mut |_, _| {})
 }
