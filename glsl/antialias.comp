@@ -41,7 +41,9 @@ void main() {
     ivec2 size = ivec2(pc.width, pc.height);
     uint count = work_count[0];
     uint stride = gl_NumWorkGroups.x * gl_WorkGroupSize.x;
+    uint done = 0u;
     for (uint i = gl_GlobalInvocationID.x; i < count; i += stride) {
+        ++done;
         uint index = work[i];
         uint view = view_of(index);
         ivec2 p = pixel_of(index);
@@ -57,4 +59,7 @@ void main() {
             if (terms[k] != 0.0) atomicAdd(stats_fixed[3u * view + uint(k)], to_fixed(terms[k], pc.stats_shift));
         }
     }
+    // A driver that ended the loop early (lavapipe's loop limit) is reported, not trusted.
+    uint expected = grid_items(gl_GlobalInvocationID.x, stride, count);
+    if (done < expected) atomicAdd(work_count[UNFINISHED], expected - done);
 }

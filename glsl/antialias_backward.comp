@@ -122,5 +122,12 @@ void handle_pixel(uint index) {
 void main() {
     uint count = work_count[0];
     uint stride = gl_NumWorkGroups.x * gl_WorkGroupSize.x;
-    for (uint i = gl_GlobalInvocationID.x; i < count; i += stride) handle_pixel(work[i]);
+    uint done = 0u;
+    for (uint i = gl_GlobalInvocationID.x; i < count; i += stride) {
+        handle_pixel(work[i]);
+        ++done;
+    }
+    // A driver that ended the loop early (lavapipe's loop limit) is reported, not trusted.
+    uint expected = grid_items(gl_GlobalInvocationID.x, stride, count);
+    if (done < expected) atomicAdd(work_count[UNFINISHED], expected - done);
 }

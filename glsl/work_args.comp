@@ -1,14 +1,21 @@
 #version 460
 // Dispatch arguments for the passes over the work list: enough workgroups of 64 for the
-// listed pixels, at most pc.max_groups (those passes loop with a grid stride).
+// listed pixels, at most pc.max_groups (those passes loop with a grid stride), but never
+// so few that an invocation handles more than ITEMS_PER_INVOCATION of them: lavapipe ends
+// an invocation's loops after 65535 iterations (src/gpu/mod.rs, LOOP_LIMIT), and a listed
+// pixel costs a pass a few dozen of them (about 36 on average with four channels).
 layout(local_size_x = 1) in;
 
 layout(set = 0, binding = 0, std430) buffer WorkCount { uint work_count[]; };  // count, x, y, z
 
 layout(push_constant, std430) uniform Constants { uint max_groups; } pc;
 
+const uint ITEMS_PER_INVOCATION = 64u;
+
 void main() {
-    work_count[1] = clamp((work_count[0] + 63u) / 64u, 1u, pc.max_groups);
+    uint count = work_count[0];
+    uint fewest = (count + 64u * ITEMS_PER_INVOCATION - 1u) / (64u * ITEMS_PER_INVOCATION);
+    work_count[1] = clamp((count + 63u) / 64u, 1u, max(pc.max_groups, fewest));
     work_count[2] = 1u;
     work_count[3] = 1u;
 }

@@ -20,6 +20,8 @@ use vkdr::raster::View;
 use vkdr::{Camera, Mesh, Pose};
 
 const TOLERANCE: f64 = 1e-2;
+/// Central-difference step, relative to the object's size.
+const STEP: f64 = 1e-6;
 
 #[derive(Clone)]
 struct Case {
@@ -65,7 +67,7 @@ fn rigid(pose: &Pose) -> RigidPose {
 /// Evaluates on the device and against the model; returns the report (asserting the
 /// forward agreement and the absence of NaN here, the gradient bounds in the caller).
 fn check(case: &Case) -> (Report, Evaluation) {
-    check_vertices(case, false)
+    check_vertices(case, Vertices::All, STEP)
 }
 
 /// As [`check`], with the vertex gradient compared on a subset of the vertices (those
@@ -73,7 +75,17 @@ fn check(case: &Case) -> (Report, Evaluation) {
 /// meshes too dense to difference every vertex. The pose gradients, which sum every
 /// vertex's contribution, are still compared in full.
 fn check_subset(case: &Case) -> (Report, Evaluation) {
-    check_vertices(case, true)
+    check_vertices(case, Vertices::Subset, STEP)
+}
+
+/// Which vertices' gradients [`check_vertices`] compares with central differences.
+#[derive(Clone, Copy, PartialEq)]
+enum Vertices {
+    All,
+    /// Those with a nonzero device gradient, and every 17th of the others.
+    Subset,
+    /// Every this many-th vertex (for images too large to difference many).
+    Every(usize),
 }
 
 /// The case's scene on the device.
@@ -93,7 +105,7 @@ fn device_scene(ctx: &vkdr::gpu::Context, case: &Case) -> Scene {
     .expect("scene")
 }
 
-fn check_vertices(case: &Case, subset: bool) -> (Report, Evaluation) {
+fn check_vertices(case: &Case, vertices: Vertices, step: f64) -> (Report, Evaluation) {
     let ctx = common::context();
     let renderer = DiffRenderer::new(&ctx).expect("diff renderer");
     let mut scene = device_scene(&ctx, case);
@@ -162,13 +174,17 @@ fn check_vertices(case: &Case, subset: bool) -> (Report, Evaluation) {
 
     let (lo, hi) = case.mesh.bounds();
     let size = (0..3).map(|k| (hi[k] - lo[k]) as f64).fold(0.0, f64::max);
-    let h = 1e-6 * size;
+    let h = step * size;
     let loss_at = |positions: &[DVec3], poses: &[RigidPose]| {
         reference::evaluate(&problem, positions, poses).loss
     };
 
     let checked: Vec<usize> = (0..positions.len())
-        .filter(|&v| !subset || v % 17 == 0 || gpu.vertex_gradient[v] != [0.0; 3])
+        .filter(|&v| match vertices {
+            Vertices::All => true,
+            Vertices::Subset => v % 17 == 0 || gpu.vertex_gradient[v] != [0.0; 3],
+            Vertices::Every(k) => v % k == 0,
+        })
         .collect();
     let mut fd_vertex = Vec::with_capacity(checked.len() * 3);
     let mut moved = positions.clone();
@@ -627,6 +643,36 @@ fn dense_occluder_in_front_of_a_dense_sphere() {
     let (report, _) = check_subset(&fine);
     assert_report_within_tolerance(&report);
     assert_same_surface_gradients(&scene(0), &fine);
+}
+
+/// A 1280 x 1280 view of four attribute channels, the sphere larger than the image: over
+/// 1e6 listed pixels, every one of them reached by the passes over the list (a device that
+/// ends a loop early is caught: `Scene::check_walks`), and the loss and gradients match
+/// the float64 model as at 64 px.
+#[test]
+fn every_listed_pixel_of_a_large_image_is_reached() {
+    let size = 1280;
+    let mut case = sphere_case(Loss::Mse, 0.1, 0.24, size);
+    let channels = 4;
+    let attributes: Vec<f32> = case
+        .mesh
+        .positions()
+        .iter()
+        .flat_map(|p| (0..channels).map(move |c| 0.5 + (c as f32 + 1.0) * p[c % 3]))
+        .collect();
+    let mask = case.observed.clone();
+    case.observed = mask
+        .iter()
+        .flat_map(|&m| (0..channels).map(move |c| m * (0.1 + 0.1 * c as f32)))
+        .collect();
+    case.attributes = Some((attributes, channels as u32));
+    // Steps of 1e-8: the finer the pixel grid, the more often a silhouette vertex lies
+    // within a step of 1e-6 (1e-3 px here) of a line between pixel centres, where the
+    // loss has a kink that a central difference straddles.
+    let (report, gpu) = check_vertices(&case, Vertices::Every(5), 1e-8);
+    let listed = gpu.ids.iter().filter(|&&id| id != 0).count();
+    assert!(listed > 1_000_000, "only {listed} pixels covered");
+    assert_report_within_tolerance(&report);
 }
 
 #[test]

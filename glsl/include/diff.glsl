@@ -101,6 +101,12 @@ float depth_on(Triangle tri, vec2 p) {
 const int MAX_WALK = 65536;
 const uint LOST_WALKS = 4u;     // work_count slot counting walks that could not finish
 const uint MISSED_STARTS = 7u;  // work_count slot counting lines that miss their start
+const uint UNFINISHED = 8u;     // work_count slot counting listed pixels a pass never reached
+
+// The items of a grid-stride loop from `first` in steps of `stride` below `count`.
+uint grid_items(uint first, uint stride, uint count) {
+    return first < count ? (count - first - 1u) / stride + 1u : 0u;
+}
 const uint NO_VERTEX = 0xffffffffu;
 
 struct Crossing {

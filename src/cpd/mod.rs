@@ -24,7 +24,8 @@ use glam::DVec3;
 
 use crate::error::{Error, Result};
 use crate::gpu::{
-    spirv, Binding, BindingKind, Buffer, BufferKind, ComputePipeline, Context, Groups, Recorder,
+    spans, spirv, Binding, BindingKind, Buffer, BufferKind, ComputePipeline, Context, Groups,
+    Recorder, LOOP_LIMIT,
 };
 use crate::mesh::centroid;
 use linalg::Matrix;
@@ -35,19 +36,11 @@ const ACCUMULATE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/cpd_accumula
 const GAUSS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/gauss_product.comp.spv"));
 /// Points served per invocation by the passes above (`ROWS` in `glsl/include/cpd.glsl`).
 const ROWS: u32 = 8;
-/// Points of the other set one dispatch of those passes loops over. llvmpipe ends every
-/// invocation's loops, silently, after 65535 iterations all loops together (Mesa's
-/// `LP_MAX_TGSI_LOOP_ITERATIONS`); a span costs an invocation about 10 iterations per 8
-/// points and loop (two loops in the denominator pass), some 2e4 in all. The same span on
-/// every driver keeps every driver's sums in the same order.
+/// Points of the other set one dispatch of those passes loops over (see
+/// [`LOOP_LIMIT`]): on lavapipe an invocation runs about 10 loop iterations per 8 points
+/// and loop (two loops in the denominator pass), some 2e4 in all.
 pub const SPAN: u32 = 8192;
-
-/// The spans [first, end) of `count` points, [`SPAN`] at a time.
-fn spans(count: u32) -> impl Iterator<Item = (u32, u32)> {
-    (0..count)
-        .step_by(SPAN as usize)
-        .map(move |first| (first, count.min(first + SPAN)))
-}
+const _: () = assert!(2 * (SPAN / 8) * 10 < LOOP_LIMIT / 2);
 
 /// CPD settings (defaults as in the paper and pycpd: beta = 2, lambda = 2, w = 0.1).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -392,7 +385,7 @@ impl Backend for GpuBackend<'_> {
         }
         let p = self.pipelines;
         let mut rec = Recorder::new(self.ctx)?;
-        for (first, end) in spans(m) {
+        for (first, end) in spans(m, SPAN) {
             rec.run_compute(
                 &p.denominator,
                 &[
@@ -410,7 +403,7 @@ impl Backend for GpuBackend<'_> {
             );
             rec.memory_barrier();
         }
-        for (first, end) in spans(n) {
+        for (first, end) in spans(n, SPAN) {
             rec.run_compute(
                 &p.accumulate,
                 &[
@@ -475,7 +468,7 @@ impl Backend for GpuBackend<'_> {
             self.columns.write(0, &columns)?;
             let p = self.pipelines;
             let mut rec = Recorder::new(self.ctx)?;
-            for (first, end) in spans(m as u32) {
+            for (first, end) in spans(m as u32, SPAN) {
                 rec.run_compute(
                     &p.gauss,
                     &[

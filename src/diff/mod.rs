@@ -19,8 +19,8 @@ use bytemuck::{Pod, Zeroable};
 
 use crate::error::{Error, Result};
 use crate::gpu::{
-    spirv, Binding, BindingKind, Buffer, BufferKind, ComputePipeline, Context, Groups, ImageState,
-    Recorder, Timestamps,
+    spans, spirv, Binding, BindingKind, Buffer, BufferKind, ComputePipeline, Context, Groups,
+    ImageState, Recorder, Timestamps, LOOP_LIMIT,
 };
 use crate::loss::{DistanceField, Loss};
 use crate::mesh::Mesh;
@@ -45,13 +45,18 @@ fn box_words(views: u32) -> u64 {
 /// the silhouette searches that gave up since [`Scene::record_prepare`], then the largest
 /// camera- and attribute-gradient terms of the fixed-point sums (`CAMERA_MAX`,
 /// `ATTRIBUTE_MAX` in `glsl/include/diff_pass.glsl`), then the last evaluation's pixel
-/// pairs whose line misses the front triangle ([`Scene::missed_starts`]).
-const WORK_COUNT_WORDS: u64 = 8;
+/// pairs whose line misses the front triangle ([`Scene::missed_starts`]), then (at
+/// [`UNFINISHED`]) the listed pixels a pass never reached since [`Scene::record_prepare`].
+const WORK_COUNT_WORDS: u64 = 9;
 /// As `LOST_WALKS` in `glsl/include/diff.glsl`.
 const LOST_WALKS: usize = 4;
 /// As `CAMERA_MAX` and `ATTRIBUTE_MAX` in `glsl/include/diff_pass.glsl`.
 const CAMERA_MAX: u32 = 5;
 const ATTRIBUTE_MAX: u32 = 6;
+/// The most items one invocation of a grid-stride pass loops over (as in
+/// `glsl/work_args.comp`): at a few dozen loop iterations an item, far from
+/// [`crate::gpu::LOOP_LIMIT`].
+const ITEMS_PER_INVOCATION: u32 = 64;
 /// Timestamp slots [`Scene::record_passes`] needs.
 pub const PROFILE_SLOTS: u32 = 16;
 
@@ -91,6 +96,8 @@ impl Marks<'_> {
 
 /// As `MISSED_STARTS` in `glsl/include/diff.glsl`.
 const MISSED_STARTS: usize = 7;
+/// As `UNFINISHED` in `glsl/include/diff.glsl`.
+const UNFINISHED: usize = 8;
 /// As `TERMS_PER_LISTED` there.
 const TERMS_PER_LISTED: u32 = 3;
 /// Triangles a scene can hold: the pair records (`encode_pair` in
@@ -230,6 +237,8 @@ struct FinalizeConstants {
     loss: u32,
     partial_slots: u32,
     stats_shift: i32,
+    first: u32,
+    end: u32,
 }
 
 #[repr(C)]
@@ -519,6 +528,15 @@ impl Scene {
             Some(shading) => {
                 let light = shading.unit_light()?.map(|v| v as f32);
                 let (start, incident) = incident_triangles(desc.mesh);
+                // lambert.comp loops over a vertex's triangles in one invocation.
+                let valence = start.windows(2).map(|w| w[1] - w[0]).max().unwrap_or(0);
+                if valence > crate::gpu::LOOP_LIMIT / 2 {
+                    return Err(Error::Limit(format!(
+                        "a vertex of the mesh is shared by {valence} triangles; shading \
+                         handles at most {} per vertex",
+                        crate::gpu::LOOP_LIMIT / 2
+                    )));
+                }
                 Some(LambertBuffers {
                     start: Buffer::from_slice(ctx, "incident triangle starts", &start)?,
                     incident: Buffer::from_slice(ctx, "incident triangles", &incident)?,
@@ -717,8 +735,11 @@ impl Scene {
     }
 
     /// Workgroups of 64 for a grid-stride pass over `items`.
+    /// Workgroups of 64 for a grid-stride pass over `items`: at most `grid_groups`, unless
+    /// an invocation would then loop over more than [`ITEMS_PER_INVOCATION`] items.
     fn grid(&self, items: u32) -> u32 {
-        items.div_ceil(64).clamp(1, self.grid_groups)
+        let fewest = items.div_ceil(64 * ITEMS_PER_INVOCATION);
+        items.div_ceil(64).clamp(1, self.grid_groups.max(fewest))
     }
 
     fn pass_constants(&self, stage: u32) -> PassConstants {
@@ -783,14 +804,14 @@ impl Scene {
         marks: &mut Marks,
     ) -> Result<()> {
         marks.start(rec);
-        // The listed pixels, dispatch arguments and largest terms; the lost-walk count
-        // runs on.
+        // The listed pixels, dispatch arguments and largest terms; the counts of lost walks
+        // and unfinished pixels run on.
         rec.fill_buffer_range(&self.work_count, 0, 4 * LOST_WALKS as u64, 0);
         let after_lost = 4 * (LOST_WALKS as u64 + 1);
         rec.fill_buffer_range(
             &self.work_count,
             after_lost,
-            4 * WORK_COUNT_WORDS - after_lost,
+            4 * UNFINISHED as u64 - after_lost,
             0,
         );
         // The loss sums start from the background's (record_prepare), the image from
@@ -873,21 +894,26 @@ impl Scene {
             marks.pass(rec, ["pairs", "antialias"][stage as usize]);
         }
 
-        rec.run_compute(
-            &renderer.finalize,
-            &[
-                Binding::buffer(&self.stats),
-                Binding::buffer(&self.partials),
-                Binding::buffer(&self.stats_fixed),
-            ],
-            &FinalizeConstants {
-                loss: self.loss.code(),
-                partial_slots: self.partial_slots,
-                stats_shift: self.stats_shift,
-            },
-            Groups::Count(1, 1, n),
-        );
-        rec.memory_barrier();
+        // One workgroup per view loops over its slots, a span per dispatch.
+        for (first, end) in spans(self.partial_slots, 64 * (LOOP_LIMIT / 4)) {
+            rec.run_compute(
+                &renderer.finalize,
+                &[
+                    Binding::buffer(&self.stats),
+                    Binding::buffer(&self.partials),
+                    Binding::buffer(&self.stats_fixed),
+                ],
+                &FinalizeConstants {
+                    loss: self.loss.code(),
+                    partial_slots: self.partial_slots,
+                    stats_shift: self.stats_shift,
+                    first,
+                    end,
+                },
+                Groups::Count(1, 1, n),
+            );
+            rec.memory_barrier();
+        }
         marks.pass(rec, "loss");
         marks.phase(rec, 1);
 
@@ -1015,12 +1041,22 @@ impl Scene {
 
     /// Fails with [`Error::Limit`] if a silhouette search gave up (a mesh whose walk
     /// between two pixel centres crossed more triangles than `MAX_WALK` in
-    /// `glsl/include/diff.glsl`) in any evaluation since [`Scene::record_prepare`]: the
-    /// gradients would miss that crossing.
+    /// `glsl/include/diff.glsl`), or a pass did not reach every listed pixel (a driver
+    /// that ended a loop early, [`crate::gpu::LOOP_LIMIT`]), in any evaluation since
+    /// [`Scene::record_prepare`]: the gradients would miss those terms.
     pub fn check_walks(&self) -> Result<()> {
-        let lost = self
+        let counts = self
             .work_count
-            .read_range::<u32>(0, WORK_COUNT_WORDS as usize)?[LOST_WALKS];
+            .read_range::<u32>(0, WORK_COUNT_WORDS as usize)?;
+        let (lost, unfinished) = (counts[LOST_WALKS], counts[UNFINISHED]);
+        if unfinished > 0 {
+            return Err(Error::Limit(format!(
+                "{unfinished} listed pixels were never reached by a pass: the device ended \
+                 a shader's loop early (lavapipe stops an invocation after {} loop \
+                 iterations); the loss and gradients would be wrong",
+                crate::gpu::LOOP_LIMIT
+            )));
+        }
         if lost > 0 {
             return Err(Error::Limit(format!(
                 "{lost} silhouette searches could not finish: they crossed more than 65536 \

@@ -49,3 +49,18 @@ pub fn spirv(bytes: &[u8]) -> crate::Result<Vec<u32>> {
     ash::util::read_spv(&mut std::io::Cursor::new(bytes))
         .map_err(|e| Error::InvalidInput(format!("bad SPIR-V: {e}")))
 }
+
+/// Loop iterations one shader invocation may run, all its loops together. llvmpipe
+/// (lavapipe) ends an invocation's loops silently past this (Mesa's
+/// `LP_MAX_TGSI_LOOP_ITERATIONS`, one counter shared by every loop); other drivers have
+/// no such limit. A shader whose loops grow with its input is dispatched once per span of
+/// the input ([`spans`]), each dispatch carrying on from the last one's sums, so that no
+/// invocation comes near it on any driver (and every driver adds in the same order).
+pub const LOOP_LIMIT: u32 = 65535;
+
+/// The spans [first, end) of `count` items, `span` at a time (at least one span, empty
+/// when `count` is 0).
+pub fn spans(count: u32, span: u32) -> impl Iterator<Item = (u32, u32)> {
+    let span = span.max(1);
+    (0..count.div_ceil(span).max(1)).map(move |k| (k * span, count.min(k * span + span)))
+}

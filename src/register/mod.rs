@@ -19,8 +19,8 @@ use crate::cpd::linalg::{self, Matrix};
 use crate::diff::{DiffRenderer, Scene, SceneDesc, Shading};
 use crate::error::{Error, Result};
 use crate::gpu::{
-    spirv, Binding, BindingKind, Buffer, ComputePipeline, Context, Groups, Recorder, Recording,
-    Timestamps,
+    spans, spirv, Binding, BindingKind, Buffer, ComputePipeline, Context, Groups, Recorder,
+    Recording, Timestamps, LOOP_LIMIT,
 };
 use crate::loss::Loss;
 use crate::raster::View;
@@ -35,6 +35,9 @@ const BFGS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/bfgs.comp.spv"));
 
 /// The most iterations (or alignment iterations) one registration may ask for.
 pub const MAX_ITERATIONS: usize = 100_000;
+/// Vertex coordinates one dispatch of the latent-gradient pass sums (64 invocations a
+/// workgroup, each looping over a 64th; see [`LOOP_LIMIT`]).
+const LATENT_SPAN: u32 = 64 * (LOOP_LIMIT / 4);
 
 /// How the latent code (and the pose) are updated.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -73,8 +76,14 @@ impl std::str::FromStr for Optimizer {
     }
 }
 
-/// The quasi-Newton shader's state size limit (glsl/bfgs.comp MAX_N): code and pose.
+/// The quasi-Newton shader's state size limit (glsl/bfgs.comp MAX_N): code and pose. One
+/// invocation runs the whole step, about 3 n^2 + k^3 / 6 loop iterations (n = dims + 6, k
+/// codes held on their bound): some 57 000 at 58 dims, within lavapipe's
+/// [`LOOP_LIMIT`], which 62 dims would pass.
 const BFGS_MAX_DIMS: usize = 64 - 6;
+/// The most latent dimensions of the other optimisers: their shaders loop over the code
+/// a few times in one invocation (and no shape space from a few dozen meshes has more).
+const MAX_DIMS: usize = 4096;
 
 /// How to register.
 #[derive(Clone, Copy, Debug)]
@@ -256,7 +265,7 @@ impl Registrar {
                 "latent gradient",
                 &spirv(LATENT_GRADIENT)?,
                 &[b; 3],
-                8,
+                16,
             )?,
             optimizer: ComputePipeline::new(ctx, "optimizer", &spirv(OPTIMIZER)?, &[b; 5], 44)?,
             bfgs: ComputePipeline::new(ctx, "bfgs", &spirv(BFGS)?, &[b; 5], 44)?,
@@ -494,17 +503,19 @@ impl Registrar {
         }
         rec.fill_buffer(&task.grad_latent, 0);
         rec.memory_barrier();
-        rec.run_compute(
-            &self.latent_gradient,
-            &[
-                Binding::buffer(&task.basis),
-                Binding::buffer(scene.vertex_gradient()),
-                Binding::buffer(&task.grad_latent),
-            ],
-            &[m as u32, k as u32],
-            Groups::Count(1, 1, k as u32),
-        );
-        rec.memory_barrier();
+        for (first, end) in spans(3 * m as u32, LATENT_SPAN) {
+            rec.run_compute(
+                &self.latent_gradient,
+                &[
+                    Binding::buffer(&task.basis),
+                    Binding::buffer(scene.vertex_gradient()),
+                    Binding::buffer(&task.grad_latent),
+                ],
+                &[m as u32, k as u32, first, end],
+                Groups::Count(1, 1, k as u32),
+            );
+            rec.memory_barrier();
+        }
         let optimizer = match params.optimizer {
             Optimizer::Sgd | Optimizer::Adam => &self.optimizer,
             Optimizer::Bfgs => &self.bfgs,
@@ -597,6 +608,11 @@ impl<'a> Task<'a> {
     fn new(ctx: &Context, job: &Job<'a>, params: &RegisterParams) -> Result<Self> {
         let space = job.space;
         let k = space.dims();
+        if k > MAX_DIMS {
+            return Err(Error::Limit(format!(
+                "registration takes at most {MAX_DIMS} latent dimensions, the space has {k}"
+            )));
+        }
         if params.optimizer == Optimizer::Bfgs && k > BFGS_MAX_DIMS {
             return Err(Error::InvalidInput(format!(
                 "the bfgs optimizer takes at most {BFGS_MAX_DIMS} latent dimensions, the space has {k}"
