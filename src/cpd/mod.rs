@@ -385,41 +385,19 @@ impl Backend for GpuBackend<'_> {
         }
         let p = self.pipelines;
         let mut rec = Recorder::new(self.ctx)?;
-        for (first, end) in spans(m, SPAN) {
-            rec.run_compute(
-                &p.denominator,
-                &[
-                    Binding::buffer(&self.moving),
-                    Binding::buffer(&self.target),
-                    Binding::buffer(&self.log_den),
-                    Binding::buffer(&self.running),
-                ],
-                &EstepConstants {
-                    first,
-                    end,
-                    ..constants
-                },
-                Groups::Count(n.div_ceil(64 * ROWS), 1, 1),
-            );
-            rec.memory_barrier();
-        }
-        for (first, end) in spans(n, SPAN) {
-            rec.run_compute(
-                &p.accumulate,
-                &[
-                    Binding::buffer(&self.moving),
-                    Binding::buffer(&self.target),
-                    Binding::buffer(&self.log_den),
-                    Binding::buffer(&self.sums),
-                ],
-                &EstepConstants {
-                    first,
-                    end,
-                    ..constants
-                },
-                Groups::Count(m.div_ceil(64 * ROWS), 1, 1),
-            );
-            rec.memory_barrier();
+        let (moving, target, log_den) = (&self.moving, &self.target, &self.log_den);
+        let passes = [
+            (&p.denominator, &self.running, m, n),
+            (&p.accumulate, &self.sums, n, m),
+        ];
+        for (pipeline, out, other, own) in passes {
+            let bindings = [
+                Binding::buffer(moving),
+                Binding::buffer(target),
+                Binding::buffer(log_den),
+                Binding::buffer(out),
+            ];
+            record_spans(&mut rec, pipeline, &bindings, constants, other, own);
         }
         self.ctx.submit_and_wait(rec)?;
         let sums = self.sums.read_range::<[f32; 4]>(0, m as usize)?;
@@ -468,23 +446,12 @@ impl Backend for GpuBackend<'_> {
             self.columns.write(0, &columns)?;
             let p = self.pipelines;
             let mut rec = Recorder::new(self.ctx)?;
-            for (first, end) in spans(m as u32, SPAN) {
-                rec.run_compute(
-                    &p.gauss,
-                    &[
-                        Binding::buffer(&self.source_points),
-                        Binding::buffer(&self.columns),
-                        Binding::buffer(&self.product),
-                    ],
-                    &EstepConstants {
-                        first,
-                        end,
-                        ..constants
-                    },
-                    Groups::Count((m as u32).div_ceil(64 * ROWS), 1, 1),
-                );
-                rec.memory_barrier();
-            }
+            let bindings = [
+                Binding::buffer(&self.source_points),
+                Binding::buffer(&self.columns),
+                Binding::buffer(&self.product),
+            ];
+            record_spans(&mut rec, &p.gauss, &bindings, constants, m as u32, m as u32);
             self.ctx.submit_and_wait(rec)?;
             let product = self.product.read_range::<[f32; 4]>(0, m)?;
             for (i, row) in product.iter().enumerate() {
@@ -494,6 +461,32 @@ impl Backend for GpuBackend<'_> {
             }
         }
         Ok(out)
+    }
+}
+
+/// Records one of the passes above: a dispatch per [`SPAN`] of the `other` set's points
+/// (in order, each after the last), each serving all `own` points.
+fn record_spans(
+    rec: &mut Recorder,
+    pipeline: &ComputePipeline,
+    bindings: &[Binding],
+    constants: EstepConstants,
+    other: u32,
+    own: u32,
+) {
+    for (first, end) in spans(other, SPAN) {
+        let constants = EstepConstants {
+            first,
+            end,
+            ..constants
+        };
+        rec.run_compute(
+            pipeline,
+            bindings,
+            &constants,
+            Groups::Count(own.div_ceil(64 * ROWS), 1, 1),
+        );
+        rec.memory_barrier();
     }
 }
 
