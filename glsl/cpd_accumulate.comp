@@ -1,7 +1,12 @@
 #version 460
-// CPD E-step, pass 2: per moving point m, P1_m = sum_n P_mn and PX_m = sum_n P_mn x_n
-// (written as vec4: xyz = PX_m, w = P1_m), one span of the targets per dispatch, each
-// adding to the sums of the spans before it.
+// CPD E-step, pass 2: per moving point m, P1_m = sum_n P_mn, the pull
+// sum_n P_mn (x_n - t_m) and the spread sum_n P_mn |x_n - t_m|^2, one span of the targets
+// per dispatch, each adding to the sums of the spans before it. Two vec4 per point:
+// (pull, P1), (spread, 0, 0, 0).
+//
+// Sums of differences, not PX_m = sum_n P_mn x_n: near convergence x_n - t_m is tiny, and
+// sigma^2 = sum P |x - t|^2 / (3 sum P) formed from PX in float32 cancels to rounding
+// (noise-free sets lost sigma^2 below about 1e-7 of the squared radius that way).
 #include "cpd.glsl"
 
 layout(set = 0, binding = 0, std430) readonly buffer Moving { vec4 moving[]; };
@@ -13,9 +18,12 @@ void main() {
     uint lane = gl_SubgroupInvocationID;
     vec3 t[ROWS];
     vec4 acc[ROWS];
+    float spread[ROWS];
     for (uint r = 0u; r < ROWS; ++r) {
-        t[r] = moving[min(row(r), pc.m - 1u)].xyz;
-        acc[r] = pc.first == 0u ? vec4(0.0) : sums[min(row(r), pc.m - 1u)];
+        uint i = min(row(r), pc.m - 1u);
+        t[r] = moving[i].xyz;
+        acc[r] = pc.first == 0u ? vec4(0.0) : sums[2u * i];
+        spread[r] = pc.first == 0u ? 0.0 : sums[2u * i + 1u].x;
     }
     for (uint base = pc.first; base < pc.end; base += gl_SubgroupSize) {
         uint j = min(base + lane, pc.end - 1u);
@@ -27,12 +35,16 @@ void main() {
             float dk = subgroupShuffle(den, k);
             for (uint r = 0u; r < ROWS; ++r) {
                 vec3 d = xk - t[r];
-                float p = exp(-dot(d, d) * pc.inv_two_sigma2 - dk);
-                acc[r] += vec4(p * xk, p);
+                float d2 = dot(d, d);
+                float p = exp(-d2 * pc.inv_two_sigma2 - dk);
+                acc[r] += vec4(p * d, p);
+                spread[r] += p * d2;
             }
         }
     }
     for (uint r = 0u; r < ROWS; ++r) {
-        if (row(r) < pc.m) sums[row(r)] = acc[r];
+        if (row(r) >= pc.m) continue;
+        sums[2u * row(r)] = acc[r];
+        sums[2u * row(r) + 1u] = vec4(spread[r], 0.0, 0.0, 0.0);
     }
 }

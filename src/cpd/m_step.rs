@@ -35,6 +35,8 @@
 //! that many landmarks outright: the preconditioner is then the exact inverse, one
 //! Woodbury solve, no kernel products (faster, approximate: an explicit option).
 
+use std::cell::OnceCell;
+
 use faer::linalg::solvers::{Llt, Solve};
 use faer::{Mat, Side};
 use glam::DVec3;
@@ -56,6 +58,9 @@ const MAX_STEP: f64 = 2.0;
 /// The Nystrom solution is taken as it is when its error bound is below this (a bound
 /// from a trace: the true error is orders of magnitude smaller).
 const NYSTROM_EXACT: f64 = 1e-2;
+/// Relative rounding of a device kernel product: (G v)_i is a float32 sum of M terms,
+/// good to about this times sum_j G_ij |v_j| (2^-24 per term, with room for the sum).
+const PRODUCT_ROUNDING: f64 = 1e-6;
 
 /// The M-step's fixed part: the Nystrom factor of the source's kernel.
 pub struct MStep {
@@ -65,6 +70,8 @@ pub struct MStep {
     missed: Vec<f64>,
     /// G is F F^T (the low-rank option): solve directly, without kernel products.
     low_rank: bool,
+    /// max_i sum_j G_ij, from one device product at the first M-step that needs it.
+    largest_row_sum: OnceCell<f64>,
 }
 
 /// What one M-step did.
@@ -74,6 +81,9 @@ pub struct Solved {
     pub products: usize,
     /// Every column reached [`TOLERANCE`] (always true for the low-rank option).
     pub converged: bool,
+    /// The Nystrom solution was kept although its bound is above [`NYSTROM_EXACT`]: the
+    /// device's float32 products are too coarse for this system to refine it.
+    pub limited: bool,
 }
 
 impl MStep {
@@ -121,6 +131,7 @@ impl MStep {
             features,
             missed,
             low_rank: rank.is_some(),
+            largest_row_sum: OnceCell::new(),
         })
     }
 
@@ -129,13 +140,15 @@ impl MStep {
         self.features.cols
     }
 
-    /// One M-step for the E-step `e` of the source `y` with s = lambda sigma^2: writes W
-    /// to `w` and the displacement G W to `gw` (both M x 3).
+    /// One M-step for the E-step `e` at the moved points `moving` of the source `y`, with
+    /// s = lambda sigma^2: writes W to `w` and the displacement G W to `gw` (both M x 3).
+    #[allow(clippy::too_many_arguments)]
     pub fn solve(
         &self,
         backend: &mut dyn Backend,
         e: &Expectation,
         y: &[DVec3],
+        moving: &[DVec3],
         s: f64,
         w: &mut Matrix,
         gw: &mut Matrix,
@@ -145,7 +158,8 @@ impl MStep {
         let d: Vec<f64> = e.p1.iter().map(|&p| p.max(floor)).collect();
         let mut rhs = Matrix::zeros(m, 3);
         for i in 0..m {
-            let r = e.px[i] / d[i] - y[i];
+            // PX_i / d_i - y_i, with PX_i = pull_i + P1_i t_i.
+            let r = (e.pull[i] + e.p1[i] * moving[i]) / d[i] - y[i];
             rhs.data[3 * i..3 * i + 3].copy_from_slice(&r.to_array());
         }
         let diagonal: Vec<f64> = d.iter().map(|di| s / di).collect();
@@ -165,9 +179,41 @@ impl MStep {
             return Ok(Solved {
                 products: 0,
                 converged: true,
+                limited: false,
+            });
+        }
+        // A float32 product G v is off by up to about PRODUCT_ROUNDING sum_j G_ij |v_j|.
+        // Conjugate gradients refine the Nystrom solution along what F F^T misses, where A
+        // is no larger than E + S; once even the largest row sum of G times that rounding
+        // exceeds the smallest S_i (sigma^2 near zero, as on noise-free sets), a step
+        // would follow the rounding, not the system (it threw 5000 noise-free points far
+        // off at sigma^2 = 2e-8). The Nystrom solution, exact in float64 for F F^T, is
+        // then the best there is.
+        let mut products = 0;
+        let largest_row_sum = match self.largest_row_sum.get() {
+            Some(&sum) => sum,
+            None => {
+                let ones = Matrix {
+                    rows: m,
+                    cols: 1,
+                    data: vec![1.0; m],
+                };
+                let sums = backend.kernel_product(&ones)?;
+                products += 1;
+                let sum = sums.data.iter().copied().fold(0.0, f64::max);
+                *self.largest_row_sum.get_or_init(|| sum)
+            }
+        };
+        let smallest = diagonal.iter().copied().fold(f64::INFINITY, f64::min);
+        if PRODUCT_ROUNDING * largest_row_sum >= smallest {
+            return Ok(Solved {
+                products,
+                converged: false,
+                limited: true,
             });
         }
         *gw = backend.kernel_product(w)?;
+        products += 1;
 
         // Conjugate gradients from there, three independent columns, one product per step,
         // preconditioned with what F F^T misses on the diagonal too: with it,
@@ -203,7 +249,6 @@ impl MStep {
         let mut rz = column_dot(&residual, &z);
         let mut direction = z;
         let mut active: [bool; 3] = std::array::from_fn(|c| rz[c] > target[c]);
-        let mut products = 1;
         while active.contains(&true) && products < MAX_PRODUCTS {
             let g_direction = backend.kernel_product(&direction)?;
             products += 1;
@@ -249,6 +294,7 @@ impl MStep {
         Ok(Solved {
             products,
             converged: !active.contains(&true),
+            limited: false,
         })
     }
 }

@@ -53,7 +53,9 @@ pub struct CpdParams {
     /// Weight of the uniform outlier component, in (0, 1).
     pub w: f64,
     pub max_iterations: usize,
-    /// Stop when sigma^2 changes by less than this fraction of its initial value.
+    /// Stop when an iteration lowers the objective (the negative log-likelihood plus the
+    /// smoothness term) by less than this fraction of it, as Myronenko's reference code
+    /// does.
     pub tolerance: f64,
     /// Replace G by its Nystrom approximation from this many landmarks (a faster,
     /// approximate M-step); `None`: the exact G by conjugate gradients ([`m_step`]).
@@ -104,17 +106,60 @@ pub struct CpdResult {
     /// units.
     pub sigma2: Vec<f64>,
     pub iterations: usize,
-    pub converged: bool,
+    /// Why the iterations ended.
+    pub stop: Stop,
     pub seconds: f64,
     /// Gaussian-kernel products of the M-steps, all iterations together.
     pub products: usize,
+    /// M-steps that kept the Nystrom solution because the device's float32 products were
+    /// too coarse to refine it ([`m_step::Solved::limited`]).
+    pub limited: usize,
 }
 
-/// Sums of the E-step: P1 (per source point), Pt1 (per target point), PX (per source).
+/// Why a registration ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stop {
+    /// The objective changed by less than [`CpdParams::tolerance`].
+    Converged,
+    /// sigma^2 reached its floor (1e-12 of the initial value): the sets fit exactly.
+    Exact,
+    /// An iteration raised the objective, which exact EM never does: the M-step had
+    /// reached the precision of the device's float32 kernel products (noise-free sets
+    /// drive sigma^2 towards zero and the system towards singular). That iteration is
+    /// undone; the result is the last one that lowered the objective.
+    Precision,
+    /// [`CpdParams::max_iterations`] ran.
+    Iterations,
+}
+
+impl Stop {
+    /// Whether the registration ended at a fixed point (not at the iteration limit).
+    pub fn converged(self) -> bool {
+        self != Stop::Iterations
+    }
+
+    /// A few words for a log line.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Stop::Converged => "converged",
+            Stop::Exact => "converged: the sets fit exactly",
+            Stop::Precision => "converged to the device's float32 precision",
+            Stop::Iterations => "iteration limit",
+        }
+    }
+}
+
+/// Sums of the E-step for the moved points t_m: P1_m = sum_n P_mn, Pt1_n = sum_m P_mn,
+/// the pull sum_n P_mn (x_n - t_m) and the spread sum_n P_mn |x_n - t_m|^2 (per source
+/// point; differences, so that they keep their precision as the sets close in), and
+/// sum_n log(sum_m exp(-|x_n - t_m|^2 / (2 sigma^2)) + c), the log-likelihood up to terms
+/// in sigma^2 alone.
 pub struct Expectation {
     pub p1: Vec<f64>,
     pub pt1: Vec<f64>,
-    pub px: Vec<DVec3>,
+    pub pull: Vec<DVec3>,
+    pub spread: Vec<f64>,
+    pub log_denominators: f64,
 }
 
 /// Where the E-step and the kernel products run (the device, or the float64 reference).
@@ -164,62 +209,97 @@ pub fn run(
     let started = Instant::now();
     let (m, n) = (source.len(), target.len());
     let m_step = MStep::new(source, params.beta, params.rank)?;
-    let x_norms: Vec<f64> = target.iter().map(|x| x.length_squared()).collect();
 
     // Initial sigma^2: mean squared distance over all pairs, in closed form.
     let sum_x: DVec3 = target.iter().sum();
     let sum_y: DVec3 = source.iter().sum();
-    let sum_xx: f64 = x_norms.iter().sum();
+    let sum_xx: f64 = target.iter().map(|x| x.length_squared()).sum();
     let sum_yy: f64 = source.iter().map(|p| p.length_squared()).sum();
     let initial = ((m as f64 * sum_xx + n as f64 * sum_yy - 2.0 * sum_x.dot(sum_y))
         / (3.0 * m as f64 * n as f64))
         .max(0.0);
     let floor = 1e-12 * initial.max(1e-300);
-    let mut sigma2 = if initial > 0.0 { initial } else { 1.0 };
+    let sigma2 = if initial > 0.0 { initial } else { 1.0 };
 
-    let (mut w, mut gw) = (Matrix::zeros(m, 3), Matrix::zeros(m, 3));
-    let mut products = 0;
-    let mut moving = source.to_vec();
+    // The state an iteration starts from, kept so that an iteration that raises the
+    // objective can be undone.
+    let mut state = State {
+        w: Matrix::zeros(m, 3),
+        gw: Matrix::zeros(m, 3),
+        moving: source.to_vec(),
+        sigma2,
+    };
+    let (mut products, mut limited) = (0, 0);
     let mut history = vec![sigma2];
-    let mut converged = false;
+    let mut previous: Option<(f64, State)> = None;
+    let mut stop = Stop::Iterations;
     let mut iterations = 0;
-    while iterations < params.max_iterations {
-        iterations += 1;
+    loop {
+        let sigma2 = state.sigma2;
         let log_c = 1.5 * (2.0 * std::f64::consts::PI * sigma2).ln()
             + (params.w / (1.0 - params.w)).ln()
             + (m as f64 / n as f64).ln();
-        let e = backend.expectation(&moving, sigma2, log_c)?;
+        let e = backend.expectation(&state.moving, sigma2, log_c)?;
         check_expectation(&e)?;
+        // The objective EM lowers at every iteration: the negative log-likelihood (up to
+        // constants) plus the smoothness term lambda/2 tr(W^T G W).
+        let objective = -e.log_denominators
+            + 1.5 * n as f64 * sigma2.ln()
+            + 0.5 * params.lambda * frobenius(&state.w, &state.gw);
+        if let Some((before, undo)) = previous.take() {
+            if objective > before {
+                state = undo;
+                iterations -= 1;
+                history.pop();
+                stop = Stop::Precision;
+                break;
+            }
+            if before - objective <= params.tolerance * objective.abs() {
+                stop = Stop::Converged;
+                break;
+            }
+        }
+        if sigma2 <= floor {
+            stop = Stop::Exact;
+            break;
+        }
+        if iterations == params.max_iterations {
+            break;
+        }
+        iterations += 1;
+        let start = state.clone();
         // M-step: (dP1 G + lambda sigma^2 I) W = PX - dP1 Y.
-        let solved = m_step.solve(backend, &e, source, params.lambda * sigma2, &mut w, &mut gw)?;
+        let State { w, gw, moving, .. } = &mut state;
+        let s = params.lambda * sigma2;
+        let solved = m_step.solve(backend, &e, source, &start.moving, s, w, gw)?;
         products += solved.products;
+        limited += usize::from(solved.limited);
         for i in 0..m {
             moving[i] = source[i] + DVec3::new(gw.at(i, 0), gw.at(i, 1), gw.at(i, 2));
         }
+        // sigma^2 = sum_mn P_mn |x_n - t'_m|^2 / (3 sum P) at the moved points t' = t + d,
+        // from the E-step's differences: |x - t'|^2 = |x - t|^2 - 2 (x - t).d + |d|^2.
         let np: f64 = e.p1.iter().sum();
-        let xpx: f64 = e.pt1.iter().zip(&x_norms).map(|(a, b)| a * b).sum();
-        let cross: f64 = e.px.iter().zip(&moving).map(|(a, b)| a.dot(*b)).sum();
-        let tpt: f64 =
-            e.p1.iter()
-                .zip(&moving)
-                .map(|(a, b)| a * b.length_squared())
-                .sum();
-        let previous = sigma2;
-        sigma2 = if np > 0.0 {
-            (xpx - 2.0 * cross + tpt) / (3.0 * np)
+        let spread: f64 = (0..m)
+            .map(|i| {
+                let d = moving[i] - start.moving[i];
+                e.spread[i] - 2.0 * e.pull[i].dot(d) + e.p1[i] * d.length_squared()
+            })
+            .sum();
+        let mut next = if np > 0.0 {
+            spread / (3.0 * np)
         } else {
-            previous
+            sigma2
         };
-        if !sigma2.is_finite() || sigma2 <= floor {
-            sigma2 = floor.max(f64::MIN_POSITIVE);
+        previous = Some((objective, start));
+        if !next.is_finite() || next <= floor {
+            next = floor.max(f64::MIN_POSITIVE);
         }
-        history.push(sigma2);
-        on_iteration(iterations, sigma2);
-        if (previous - sigma2).abs() <= params.tolerance * initial.max(f64::MIN_POSITIVE) {
-            converged = true;
-            break;
-        }
+        state.sigma2 = next;
+        history.push(next);
+        on_iteration(iterations, next);
     }
+    let State { w, moving, .. } = state;
     if moving.iter().any(|p| !p.is_finite()) {
         return Err(Error::InvalidInput(
             "CPD diverged to non-finite points".into(),
@@ -230,10 +310,27 @@ pub fn run(
         w: to_points(&w),
         sigma2: history,
         iterations,
-        converged,
+        stop,
         seconds: started.elapsed().as_secs_f64(),
         products,
+        limited,
     })
+}
+
+/// What one iteration starts from.
+#[derive(Clone)]
+struct State {
+    w: Matrix,
+    /// G W.
+    gw: Matrix,
+    /// Y + G W.
+    moving: Vec<DVec3>,
+    sigma2: f64,
+}
+
+/// sum_ij a_ij b_ij.
+fn frobenius(a: &Matrix, b: &Matrix) -> f64 {
+    a.data.iter().zip(&b.data).map(|(x, y)| x * y).sum()
 }
 
 /// Sum P1 and sum Pt1 both add up every P_mn, once by source and once by target: a
@@ -358,7 +455,7 @@ impl<'a> GpuBackend<'a> {
             moving: device("cpd moving", m * 16)?,
             log_den: device("cpd log denominators", n * 4)?,
             running: device("cpd running sums", n * 8)?,
-            sums: device("cpd sums", m * 16)?,
+            sums: device("cpd sums", m * 32)?,
             source_points: Buffer::from_slice(ctx, "cpd source", &vec4s(source, offset))?,
             columns: device("kernel columns", m * 16)?,
             product: device("kernel product", m * 16)?,
@@ -400,22 +497,21 @@ impl Backend for GpuBackend<'_> {
             record_spans(&mut rec, pipeline, &bindings, constants, other, own);
         }
         self.ctx.submit_and_wait(rec)?;
-        let sums = self.sums.read_range::<[f32; 4]>(0, m as usize)?;
+        let sums = self.sums.read_range::<[[f32; 4]; 2]>(0, m as usize)?;
         let log_den = self.log_den.read_range::<f32>(0, n as usize)?;
         Ok(Expectation {
-            p1: sums.iter().map(|s| s[3] as f64).collect(),
+            p1: sums.iter().map(|s| s[0][3] as f64).collect(),
             // Pt1_n = sum_m P_mn = 1 - c / denominator_n.
             pt1: log_den
                 .iter()
                 .map(|&l| (1.0 - (log_c - l as f64).exp()).clamp(0.0, 1.0))
                 .collect(),
-            // PX was accumulated relative to the offset: add P1 * offset back.
-            px: sums
+            pull: sums
                 .iter()
-                .map(|s| {
-                    DVec3::new(s[0] as f64, s[1] as f64, s[2] as f64) + s[3] as f64 * self.offset
-                })
+                .map(|s| DVec3::new(s[0][0] as f64, s[0][1] as f64, s[0][2] as f64))
                 .collect(),
+            spread: sums.iter().map(|s| s[1][0] as f64).collect(),
+            log_denominators: log_den.iter().map(|&l| l as f64).sum(),
         })
     }
 

@@ -31,23 +31,33 @@ impl Backend for ReferenceBackend {
     fn expectation(&mut self, moving: &[DVec3], sigma2: f64, log_c: f64) -> Result<Expectation> {
         let (m, n) = (moving.len(), self.target.len());
         let mut p1 = vec![0.0; m];
-        let mut px = vec![DVec3::ZERO; m];
+        let mut pull = vec![DVec3::ZERO; m];
+        let mut spread = vec![0.0; m];
         let mut pt1 = vec![0.0; n];
         let mut exponents = vec![0.0; m];
+        let mut log_denominators = 0.0;
         for (j, x) in self.target.iter().enumerate() {
             for (i, t) in moving.iter().enumerate() {
                 exponents[i] = -(*x - *t).length_squared() / (2.0 * sigma2);
             }
             let top = exponents.iter().copied().fold(log_c, f64::max);
             let den = log_sum_exp(top, &exponents, log_c);
+            log_denominators += den;
             for i in 0..m {
                 let p = (exponents[i] - den).exp();
                 p1[i] += p;
-                px[i] += p * *x;
+                pull[i] += p * (*x - moving[i]);
+                spread[i] += p * (*x - moving[i]).length_squared();
                 pt1[j] += p;
             }
         }
-        Ok(Expectation { p1, pt1, px })
+        Ok(Expectation {
+            p1,
+            pt1,
+            pull,
+            spread,
+            log_denominators,
+        })
     }
 
     fn kernel_product(&mut self, v: &Matrix) -> Result<Matrix> {

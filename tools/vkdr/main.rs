@@ -375,7 +375,7 @@ fn main() {
                 println!(
                     "{} iterations ({}) in {:.3} s; final sigma^2 {:.3e}; wrote {4}/deformed.npy, {4}/W.npy, {4}/log.json",
                     r.iterations,
-                    if r.converged { "converged" } else { "iteration limit" },
+                    r.stop.describe(),
                     r.seconds,
                     r.sigma2.last().copied().unwrap_or(f64::NAN),
                     out.display()
