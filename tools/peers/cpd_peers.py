@@ -65,6 +65,7 @@ def main():
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--missing", type=float, default=0.0, help="fraction of target points removed")
     parser.add_argument("--outliers", type=float, default=0.0, help="uniform outliers, as a fraction of n")
+    parser.add_argument("--plain", action="store_true", help="also run vkdr without SQUAREM (vkdr-plain rows)")
     args = parser.parse_args()
     os.makedirs(args.out, exist_ok=True)
     rows = []
@@ -74,20 +75,22 @@ def main():
         np.save(src, source)
         np.save(tgt, target)
 
+        variants = [("vkdr", [])] + ([("vkdr-plain", ["--no-accelerate"])] if args.plain else [])
         for _ in range(args.repeats):
-            out = os.path.join(args.out, f"vkdr_{n}")
-            started = time.perf_counter()
-            run = subprocess.run([args.vkdr, "cpd", src, tgt, "--beta", str(args.beta), "--lambda", str(args.lamb),
-                                  "--w", str(args.w), "--max-iterations", str(args.max_iterations), "--out", out],
-                                 capture_output=True, text=True)
-            wall = time.perf_counter() - started
-            if run.returncode != 0:
-                sys.exit(f"vkdr cpd failed: {run.stderr}")
-            log = json.load(open(os.path.join(out, "log.json")))
-            device = run.stderr.split(" on ", 1)[-1].splitlines()[0].strip() if " on " in run.stderr else "vkdr device"
-            moved = np.load(os.path.join(out, "deformed.npy"))
-            rows.append(("vkdr", n, round(wall, 3), log["iterations"], mean_error(moved, truth), device))
-            print(*rows[-1], sep=",", flush=True)
+            for method, extra in variants:
+                out = os.path.join(args.out, f"{method}_{n}")
+                started = time.perf_counter()
+                run = subprocess.run([args.vkdr, "cpd", src, tgt, "--beta", str(args.beta), "--lambda", str(args.lamb),
+                                      "--w", str(args.w), "--max-iterations", str(args.max_iterations), "--out", out] + extra,
+                                     capture_output=True, text=True)
+                wall = time.perf_counter() - started
+                if run.returncode != 0:
+                    sys.exit(f"vkdr cpd failed: {run.stderr}")
+                log = json.load(open(os.path.join(out, "log.json")))
+                device = run.stderr.split(" on ", 1)[-1].splitlines()[0].strip() if " on " in run.stderr else "vkdr device"
+                moved = np.load(os.path.join(out, "deformed.npy"))
+                rows.append((method, n, round(wall, 3), log["iterations"], mean_error(moved, truth), device))
+                print(*rows[-1], sep=",", flush=True)
         if n > args.skip_pycpd_above:
             continue
         for _ in range(args.repeats):

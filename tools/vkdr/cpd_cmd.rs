@@ -74,8 +74,8 @@ pub fn run(source: &Path, target: &Path, params: &CpdParams, out: &Path) -> Resu
     write_npy(&out.join("W.npy"), &matrix(&result.w)?)?;
     let sigma2: Vec<String> = result.sigma2.iter().map(|s| format!("{s:e}")).collect();
     let log = format!(
-        "{{\"iterations\": {}, \"converged\": {}, \"stop\": \"{:?}\", \"seconds\": {:.6}, \"kernel_products\": {}, \"limited_m_steps\": {}, \"beta\": {}, \"lambda\": {}, \"w\": {}, \"sigma2\": [{}]}}\n",
-        result.iterations, result.stop.converged(), result.stop, result.seconds, result.products, result.limited, params.beta, params.lambda, params.w, sigma2.join(", ")
+        "{{\"iterations\": {}, \"converged\": {}, \"stop\": \"{:?}\", \"seconds\": {:.6}, \"kernel_products\": {}, \"limited_m_steps\": {}, \"jumps\": {}, \"beta\": {}, \"lambda\": {}, \"w\": {}, \"sigma2\": [{}]}}\n",
+        result.iterations, result.stop.converged(), result.stop, result.seconds, result.products, result.limited, result.jumps, params.beta, params.lambda, params.w, sigma2.join(", ")
     );
     write_atomically(&out.join("log.json"), log.as_bytes())?;
     Ok(result)

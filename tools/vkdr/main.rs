@@ -128,14 +128,17 @@ struct CpdArgs {
     w: f64,
     #[arg(long, default_value_t = CpdParams::default().max_iterations)]
     max_iterations: usize,
-    /// Stop when sigma^2 changes by less than this fraction of its initial value in one
-    /// iteration.
+    /// Stop when an iteration lowers the objective (negative log-likelihood plus the
+    /// smoothness term) by less than this fraction of it.
     #[arg(long, default_value_t = CpdParams::default().tolerance)]
     tolerance: f64,
     /// Replace the kernel by its Nystrom approximation from this many landmarks (faster,
     /// approximate); by default the M-step uses the exact kernel.
     #[arg(long)]
     rank: Option<usize>,
+    /// Plain EM iterations, as pycpd's (no SQUAREM extrapolation).
+    #[arg(long)]
+    no_accelerate: bool,
 }
 
 impl CpdArgs {
@@ -147,6 +150,7 @@ impl CpdArgs {
             max_iterations: self.max_iterations,
             tolerance: self.tolerance,
             rank: self.rank,
+            accelerate: !self.no_accelerate,
         }
     }
 }
