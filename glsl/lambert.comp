@@ -1,8 +1,13 @@
 #version 460
 // Lambert shading as a per-vertex attribute of every view, and its backward. One
 // directional light (pc.light: unit vector towards it, camera frame) and an ambient term:
-//   a = ambient + (1 - ambient) max(0, n . light),   n = m / |m|,
-//   m = sum over the vertex's triangles of (x1 - x0) x (x2 - x0)   (camera space).
+//   a = ambient + (1 - ambient) max(0, s n . light),   n = m / |m|,
+//   m = sum over the vertex's triangles of (x1 - x0) x (x2 - x0)   (camera space),
+//   s = -1 where the vertex faces away from the camera (n . x > 0), else 1.
+// Two-sided: a surface seen from behind is lit with its normal flipped, as a camera sees
+// the inside of an open scan (a cup seen into its opening). On a closed mesh such vertices
+// only reach pixels by interpolation next to the silhouette. s is constant between the
+// places where n . x changes sign, so the backward carries it as a factor.
 // The area-weighted normal m only needs each vertex's own triangles (the `incident` list),
 // so every stage writes one vertex of one view per invocation, without atomics:
 //   stage 0: attributes[view][v] = a;
@@ -84,12 +89,13 @@ void main() {
     }
     float len = length(m);
     vec3 n = len > 0.0 ? m / len : vec3(0.0);
-    float lit = dot(n, light);
+    float side = dot(n, camera_position(to_camera, v)) > 0.0 ? -1.0 : 1.0;
+    float lit = side * dot(n, light);
     if (pc.stage == 0u) {
         attributes[slot] = pc.ambient + (1.0 - pc.ambient) * max(lit, 0.0);
         return;
     }
-    vec3 g_n = lit > 0.0 ? grad_attributes[slot] * (1.0 - pc.ambient) * light : vec3(0.0);
+    vec3 g_n = lit > 0.0 ? grad_attributes[slot] * (1.0 - pc.ambient) * side * light : vec3(0.0);
     vec3 g_m = len > 0.0 ? (g_n - n * dot(n, g_n)) / len : vec3(0.0);
     grad_normal[3u * slot] = g_m.x;
     grad_normal[3u * slot + 1u] = g_m.y;

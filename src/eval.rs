@@ -156,6 +156,9 @@ pub struct EvalSettings {
     /// Observe and compare Lambert shading (besides the mask, which the pose alignment
     /// compares); overrides the registration parameters' own.
     pub shading: Option<Shading>,
+    /// The dataset's up axis (its `info.json`, [`crate::check::Info`]): views are drawn
+    /// from the hemisphere it points into.
+    pub up: DVec3,
 }
 
 impl Default for EvalSettings {
@@ -189,6 +192,7 @@ impl Default for EvalSettings {
             from_truth: false,
             shading: None,
             cpd: CpdParams::default(),
+            up: DVec3::Y,
         }
     }
 }
@@ -197,13 +201,26 @@ impl Default for EvalSettings {
 /// elevation `elevation` at `distance`.
 pub fn view_pose(azimuth: f64, elevation: f64, distance: f64) -> Pose {
     // Object y up to image up (camera -y), then the azimuth about the object's up axis,
-    // then tilt so the camera looks down from `elevation`.
-    let r = DMat3::from_rotation_x(-elevation)
+    // then tilt so the camera looks down from `elevation`: the object's up axis leans
+    // towards the camera (up to 2026-11 the tilt went the other way, and every view looked
+    // up from below the horizon; `tests` now checks the side).
+    let r = DMat3::from_rotation_x(elevation)
         * DMat3::from_rotation_x(std::f64::consts::PI)
         * DMat3::from_rotation_y(azimuth);
     Pose {
         translation: DVec3::new(0.0, 0.0, distance),
         rotation: glam::DQuat::from_mat3(&r).to_scaled_axis(),
+    }
+}
+
+/// [`view_pose`] for an object whose up axis is `up` (any unit vector): the camera looks
+/// down from `elevation` above the plane normal to `up`.
+pub fn view_pose_up(up: DVec3, azimuth: f64, elevation: f64, distance: f64) -> Pose {
+    let pose = view_pose(azimuth, elevation, distance);
+    let to_y_up = glam::DQuat::from_rotation_arc(up.normalize(), DVec3::Y);
+    Pose {
+        translation: pose.translation,
+        rotation: (glam::DQuat::from_scaled_axis(pose.rotation) * to_y_up).to_scaled_axis(),
     }
 }
 
@@ -292,6 +309,9 @@ pub struct Trial {
     /// The registered pose against the true one with pose noise: rotation (radians) and
     /// translation (metres).
     pub rotation_error: f64,
+    /// The rotation error up to the instance's symmetry: the least over turns about its up
+    /// axis where it is rotationally symmetric ([`symmetric_about`]), else the same.
+    pub rotation_error_symmetric: f64,
     pub translation_error: f64,
     /// Code coordinates the optimiser ended with on its bound, with the pose known and
     /// with pose noise ([`Registration::on_bound`](crate::register::Registration)).
@@ -304,6 +324,62 @@ pub struct Trial {
 pub fn line_of_sight_angle(pose: Pose, axis: DVec3) -> f64 {
     let sight = pose.rotation_matrix().transpose() * pose.translation.normalize();
     sight.dot(axis.normalize()).abs().min(1.0).acos()
+}
+
+/// Whether `points` (a surface sample) are rotationally symmetric about the axis `up`
+/// through their centroid: turned by 30, 90 and 150 degrees, the points lie on average no
+/// farther from the unturned sample than twice the sample's own spacing (the mean distance
+/// from a point to its nearest other point). Bottles and cans are; a mug with its handle
+/// is not. At most 1000 of the points are used.
+pub fn symmetric_about(points: &[DVec3], up: DVec3) -> bool {
+    let step = points.len().div_ceil(1000).max(1);
+    let points: Vec<DVec3> = points.iter().step_by(step).copied().collect();
+    if points.len() < 2 {
+        return false;
+    }
+    let centre = crate::mesh::centroid(&points);
+    let spacing = points
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            points
+                .iter()
+                .enumerate()
+                .filter(|&(j, _)| j != i)
+                .map(|(_, q)| (*p - *q).length_squared())
+                .fold(f64::MAX, f64::min)
+                .sqrt()
+        })
+        .sum::<f64>()
+        / points.len() as f64;
+    [30f64, 90.0, 150.0].iter().all(|degrees| {
+        let turn = glam::DQuat::from_axis_angle(up.normalize(), degrees.to_radians());
+        let turned: Vec<DVec3> = points
+            .iter()
+            .map(|p| centre + turn * (*p - centre))
+            .collect();
+        mean_nearest(&turned, &points) <= 2.0 * spacing
+    })
+}
+
+/// The rotation error of `estimate` against `truth` up to turns of the object about its
+/// `up` axis (the least over turns in steps of 0.25 degree, refined to 0.01 degree).
+pub fn symmetric_rotation_error(estimate: Pose, truth: Pose, up: DVec3) -> f64 {
+    let error = |angle: f64| {
+        let turn = DMat3::from_axis_angle(up.normalize(), angle);
+        let turned = Pose {
+            translation: truth.translation,
+            rotation: glam::DQuat::from_mat3(&(truth.rotation_matrix() * turn)).to_scaled_axis(),
+        };
+        pose_error(estimate, turned).0
+    };
+    let coarse = (0..1440)
+        .map(|k| (k as f64 * 0.25).to_radians())
+        .min_by(|a, b| error(*a).total_cmp(&error(*b)))
+        .unwrap_or(0.0);
+    (-25..=25)
+        .map(|k| error(coarse + (k as f64 * 0.01).to_radians()))
+        .fold(f64::INFINITY, f64::min)
 }
 
 /// The object-frame unit axes of `mesh`'s bounding box, longest extent first.
@@ -395,6 +471,7 @@ pub fn evaluate_instance(
     let (mut known_ch, mut noisy_ch) = (vec![], vec![]);
     let mut trials: Vec<Trial> = Vec::new();
     let axes = extent_axes(test);
+    let symmetric = symmetric_about(&truth, settings.up);
     let mut from_truth = Vec::new();
     let (mut iterations, mut ms, mut noise_iterations, mut noise_ms) =
         (vec![], vec![], vec![], vec![]);
@@ -413,7 +490,7 @@ pub fn evaluate_instance(
         progress(trial, settings.trials);
         let azimuth = rng.range(0.0, std::f64::consts::TAU);
         let elevation = rng.range(settings.elevation.0, settings.elevation.1);
-        let pose = view_pose(azimuth, elevation, settings.distance);
+        let pose = view_pose_up(settings.up, azimuth, elevation, settings.distance);
         let view = View {
             camera: settings.camera,
             pose,
@@ -464,6 +541,11 @@ pub fn evaluate_instance(
         };
         let result = registrar.register(ctx, job(view), &pose_noise, |_, _| {})?;
         let (rotation_error, translation_error) = pose_error(result.pose, pose);
+        let rotation_error_symmetric = if symmetric {
+            symmetric_rotation_error(result.pose, pose, settings.up)
+        } else {
+            rotation_error
+        };
         trials.push(Trial {
             azimuth,
             elevation,
@@ -473,6 +555,7 @@ pub fn evaluate_instance(
             pose_noise: error(&result.vertices),
             pose_noise_placed: error(&placed_like(&result.vertices, &oracle_vertices)),
             rotation_error,
+            rotation_error_symmetric,
             translation_error,
             known_pose_on_bound: known_on_bound,
             pose_noise_on_bound: result.on_bound,
@@ -611,6 +694,17 @@ mod tests {
                 "{angle} at {elevation}"
             );
         }
+        // Any up axis: the same elevation above its plane, seen from its side (looking down
+        // it), the azimuth about it.
+        for up in [DVec3::Y, DVec3::Z, -DVec3::Z, DVec3::X, -DVec3::Y] {
+            for (azimuth, elevation) in [(0.3, 10.0), (deg(200.0), 55.0)] {
+                let pose = view_pose_up(up, azimuth, deg(elevation), 0.7);
+                let angle = line_of_sight_angle(pose, up).to_degrees();
+                assert!((angle - (90.0 - elevation)).abs() < 1e-9, "{up} {angle}");
+                let camera = -(pose.rotation_matrix().transpose() * pose.translation);
+                assert!(camera.dot(up) > 0.0, "{up}: camera below the object");
+            }
+        }
         assert!(line_of_sight_angle(view_pose(deg(90.0), 0.0, 0.7), DVec3::X) < 1e-7);
         let side = line_of_sight_angle(view_pose(0.0, 0.0, 0.7), -DVec3::X);
         assert!((side - deg(90.0)).abs() < 1e-9);
@@ -632,6 +726,33 @@ mod tests {
             rotation.to_degrees()
         );
         assert!((translation - 0.05).abs() < 1e-12);
+    }
+
+    /// A bottle is symmetric about its up axis and a drill is not; a turn about the up
+    /// axis of a symmetric object is no rotation error, any other rotation still is.
+    #[test]
+    fn rotation_error_up_to_symmetry() {
+        let deg = |a: f64| a.to_radians();
+        let bottle = surface_sample(&Mesh::bottle(24), 800, 1);
+        assert!(symmetric_about(&bottle, DVec3::Y));
+        assert!(!symmetric_about(&bottle, DVec3::X));
+        let drill = crate::dataset::instance("drill", &mut Rng::new(3)).unwrap();
+        assert!(!symmetric_about(&surface_sample(&drill, 800, 1), DVec3::Y));
+
+        let truth = view_pose(deg(40.0), deg(30.0), 0.7);
+        let turned = |axis: DVec3, angle: f64| Pose {
+            translation: truth.translation,
+            rotation: glam::DQuat::from_mat3(
+                &(truth.rotation_matrix() * DMat3::from_axis_angle(axis, deg(angle))),
+            )
+            .to_scaled_axis(),
+        };
+        let about_up = turned(DVec3::Y, 73.0);
+        assert!((pose_error(about_up, truth).0 - deg(73.0)).abs() < 1e-9);
+        assert!(symmetric_rotation_error(about_up, truth, DVec3::Y) < deg(0.01));
+        let tilted = turned(DVec3::X, 12.0);
+        let e = symmetric_rotation_error(tilted, truth, DVec3::Y);
+        assert!((e - deg(12.0)).abs() < deg(0.01), "{}", e.to_degrees());
     }
 
     /// The error curve measures every code, once for a run of equal codes.

@@ -5,6 +5,7 @@
 #![warn(unsafe_op_in_unsafe_fn)]
 
 pub mod camera;
+pub mod check;
 pub mod cpd;
 pub mod dataset;
 pub mod diff;

@@ -541,7 +541,7 @@ fn text_width(text: &str) -> i64 {
 }
 
 /// Draw `text` with its top-left corner at `(x, y)`.
-fn draw_text(img: &mut RgbImage, x: i64, y: i64, text: &str) {
+pub(crate) fn draw_text(img: &mut RgbImage, x: i64, y: i64, text: &str) {
     for (i, c) in text.chars().enumerate() {
         let gx = x + i as i64 * ADVANCE;
         if gx >= i64::from(img.width()) {

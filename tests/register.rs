@@ -147,6 +147,50 @@ fn pose_and_shape_converge_jointly() {
     assert_eq!(result.pose.translation.z as f32, 0.6, "z stays fixed");
 }
 
+/// Shading is two-sided: an open cup seen into its opening shows the inside of its wall
+/// lit (as a camera sees it), not at the ambient level of a surface facing away; the
+/// float64 model agrees (`tests/gradients.rs` checks its gradients).
+#[test]
+fn an_open_cup_seen_into_its_opening_is_lit_inside() {
+    let ctx = common::context();
+    let registrar = Registrar::new(&ctx).unwrap();
+    let closed = vkdr::Mesh::lathe(&[(0.04, -0.05), (0.045, 0.05)], 24).unwrap();
+    let top = closed.vertex_count() as u32 - 1;
+    let triangles = closed
+        .triangles()
+        .iter()
+        .filter(|t| !t.contains(&top))
+        .copied()
+        .collect();
+    let cup = vkdr::Mesh::new(closed.positions().to_vec(), triangles).unwrap();
+    // From 60 degrees above, the light at the camera.
+    let pose = eval::view_pose(0.4, 60f64.to_radians(), 0.35);
+    let shading = Shading {
+        light: [0.0, 0.0, -1.0],
+        ambient: 0.2,
+    };
+    let shaded = eval::render_shading(&ctx, &registrar, &cup, view(pose), shading).unwrap();
+    let mask = eval::render_mask(&ctx, &registrar, &cup, view(pose)).unwrap();
+    common::assert_no_validation_errors(&ctx);
+    let object: Vec<f32> = shaded
+        .iter()
+        .zip(&mask)
+        .filter(|(_, &m)| m > 0.99)
+        .map(|(&a, _)| a)
+        .collect();
+    let dark = object.iter().filter(|&&a| a < 0.25).count();
+    eprintln!(
+        "{} object pixels, {dark} at the ambient level",
+        object.len()
+    );
+    assert!(object.len() > 2000, "{}", object.len());
+    assert!(
+        dark * 10 < object.len(),
+        "{dark} of {} object pixels dark",
+        object.len()
+    );
+}
+
 /// With the shading observed too, a pose tilted away from the truth comes back while the
 /// shape converges.
 #[test]

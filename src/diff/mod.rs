@@ -165,7 +165,9 @@ pub fn incident_triangles(mesh: &Mesh) -> (Vec<u32>, Vec<u32>) {
 /// Grey Lambert shading, compared instead of the coverage: one directional light fixed in
 /// the camera frame, the smooth (area-weighted) vertex normals, and an ambient term, so
 /// that an object pixel has `ambient + (1 - ambient) max(0, n . light)` interpolated from
-/// its triangle's vertices and the background 0. Unlike a silhouette it shows how the
+/// its triangle's vertices and the background 0. Two-sided: where a vertex faces away from
+/// the camera, n is flipped, so the inside of an open scan is lit as a camera sees it
+/// (`glsl/lambert.comp`). Unlike a silhouette it shows how the
 /// surface turns, which one mask leaves open (the tilt of a bottle towards the camera).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Shading {

@@ -328,9 +328,12 @@ pub fn lambert(shading: &Shading, triangles: &[[u32; 3]], cam: &[DVec3]) -> Vec<
     }
     normals
         .iter()
-        .map(|m| {
+        .zip(cam)
+        .map(|(m, x)| {
+            // Two-sided: seen from behind, the normal flips.
+            let side = if m.dot(*x) > 0.0 { -1.0 } else { 1.0 };
             let lit = if m.length() > 0.0 {
-                m.normalize().dot(light)
+                side * m.normalize().dot(light)
             } else {
                 0.0
             };

@@ -147,24 +147,77 @@ fn category_dirs(dataset: &Path) -> Result<Vec<PathBuf>> {
     Ok(dirs)
 }
 
-/// Builds each category's shape space from train/ and evaluates every test instance.
+/// Builds each category's shape space from train/ and evaluates every test instance,
+/// after checking every chosen category (`check-dataset`): what would make the figures
+/// meaningless stops the run before any work unless `skip_checks`.
 pub fn eval(
     ctx: &Context,
     dataset: &Path,
     settings: &EvalSettings,
     only: Option<&[String]>,
+    skip_checks: bool,
 ) -> Result<Vec<Row>> {
+    let mut chosen = category_dirs(dataset)?;
+    if let Some(only) = only {
+        let name = |d: &PathBuf| {
+            d.file_name()
+                .unwrap_or_default()
+                .to_string_lossy()
+                .into_owned()
+        };
+        let names: Vec<String> = chosen.iter().map(name).collect();
+        if let Some(missing) = only.iter().find(|c| !names.contains(c)) {
+            bail!(
+                "--categories: {} has no category \"{missing}\" (it has {})",
+                dataset.display(),
+                names.join(", ")
+            );
+        }
+        chosen.retain(|d| only.contains(&name(d)));
+    }
+    let mut checked = Vec::new();
+    for dir in &chosen {
+        let category = vkdr::check::check_category(dir)?;
+        let fatal: Vec<String> = category
+            .fatal()
+            .map(|f| format!("  {}: {}", f.subject, f.message))
+            .collect();
+        let has_tests = category
+            .meshes
+            .iter()
+            .any(|(s, _)| s.role == vkdr::check::Role::Test);
+        if !has_tests {
+            bail!("{}: test/ has no meshes to evaluate", dir.display());
+        }
+        if !fatal.is_empty() && !skip_checks {
+            bail!(
+                "{} is not usable as it is (vkdr check-dataset shows all; --skip-checks runs anyway):\n{}",
+                dir.display(),
+                fatal.join("\n")
+            );
+        }
+        let warnings = category.findings.len() - fatal.len();
+        if warnings > 0 {
+            eprintln!(
+                "{}: {warnings} warnings (vkdr check-dataset {} lists them)",
+                category.name,
+                dataset.display()
+            );
+        }
+        checked.push((dir.clone(), category.info.up));
+    }
     let registrar = Registrar::new(ctx)?;
     let mut rows = Vec::new();
-    for dir in category_dirs(dataset)? {
+    for (dir, up) in checked {
         let category = dir
             .file_name()
             .unwrap_or_default()
             .to_string_lossy()
             .into_owned();
-        if only.is_some_and(|c| !c.contains(&category)) {
-            continue;
-        }
+        let settings = &EvalSettings {
+            up,
+            ..settings.clone()
+        };
         let canonical = Mesh::load_obj(dir.join("canonical.obj"))?;
         let training: Vec<(String, Vec<DVec3>)> = obj_files(&dir.join("train"))?
             .iter()
@@ -271,7 +324,8 @@ fn view_table(rows: &[Row]) -> String {
     let mut md = format!(
         "\nPose noise by view (edge-on: the line of sight within {EDGE_ON:.0} deg of the plane of the test instance's two longest \
          bounding-box axes, where rotations about its shortest axis are seen only foreshortened; \
-         ratio = mean over the trials of error / the instance's oracle error; rotation: mean final rotation error):\n\n\
+         ratio = mean over the trials of error / the instance's oracle error; rotation: mean final rotation error, \
+         up to turns about the up axis for rotationally symmetric instances, raw in brackets):\n\n\
          | category | edge-on trials | ratio | rotation (deg) | other trials | ratio | rotation (deg) |\n|---|---|---|---|---|---|---|\n"
     );
     for category in categories(rows) {
@@ -290,12 +344,10 @@ fn view_table(rows: &[Row]) -> String {
             }
             let n = of.len() as f64;
             let ratio = of.iter().map(|(r, t)| t.pose_noise / r.oracle).sum::<f64>() / n;
-            let rotation = of
-                .iter()
-                .map(|(_, t)| t.rotation_error.to_degrees())
-                .sum::<f64>()
-                / n;
-            format!("{} | {ratio:.2} | {rotation:.1}", of.len())
+            let mean = |f: &dyn Fn(&Trial) -> f64| of.iter().map(|(_, t)| f(t)).sum::<f64>() / n;
+            let symmetric = mean(&|t| t.rotation_error_symmetric.to_degrees());
+            let raw = mean(&|t| t.rotation_error.to_degrees());
+            format!("{} | {ratio:.2} | {symmetric:.1} ({raw:.1})", of.len())
         };
         md.push_str(&format!(
             "| {category} | {} | {} |\n",
@@ -309,12 +361,12 @@ fn view_table(rows: &[Row]) -> String {
 /// One line per trial: the view, the errors, and the pose error with pose noise.
 fn trials_csv(rows: &[Row]) -> String {
     let mut csv = String::from(
-        "category,instance,trial,azimuth_deg,elevation_deg,long_axis_angle_deg,short_axis_angle_deg,known_pose,pose_noise,pose_noise_placed,rotation_error_deg,translation_error,known_pose_on_bound,pose_noise_on_bound\n",
+        "category,instance,trial,azimuth_deg,elevation_deg,long_axis_angle_deg,short_axis_angle_deg,known_pose,pose_noise,pose_noise_placed,rotation_error_deg,rotation_error_symmetric_deg,translation_error,known_pose_on_bound,pose_noise_on_bound\n",
     );
     for r in rows {
         for (i, t) in r.trials.iter().enumerate() {
             csv.push_str(&format!(
-                "{},{},{i},{:.2},{:.2},{:.2},{:.2},{:e},{:e},{:e},{:.3},{:e},{},{}\n",
+                "{},{},{i},{:.2},{:.2},{:.2},{:.2},{:e},{:e},{:e},{:.3},{:.3},{:e},{},{}\n",
                 r.category,
                 r.instance,
                 t.azimuth.to_degrees(),
@@ -325,6 +377,7 @@ fn trials_csv(rows: &[Row]) -> String {
                 t.pose_noise,
                 t.pose_noise_placed,
                 t.rotation_error.to_degrees(),
+                t.rotation_error_symmetric.to_degrees(),
                 t.translation_error,
                 t.known_pose_on_bound,
                 t.pose_noise_on_bound,
@@ -344,7 +397,7 @@ pub fn write_reports(
     let c = &settings.camera;
     let (known, noisy) = (&settings.known_pose, &settings.pose_noise);
     let mut md = format!(
-        "# Registration error (Table 1)\n\nDevice: {device}. Camera: fx {} fy {} cx {} cy {}, {}x{} px; object at {} m; views from the upper hemisphere \
+        "# Registration error (Table 1)\n\nDevice: {device}. Camera: fx {} fy {} cx {} cy {}, {}x{} px; object at {} m; views from the hemisphere of each category's up axis (info.json) \
          (elevation {:.0}-{:.0} deg) at random azimuth; {} trials per instance (seed {}); shape spaces of up to {} dimensions (fewer where the training instances span fewer). Pose noise: uniform +-{} cm in x and y, +-{:.0} deg about each axis. \
          Error: mean distance (mm) from {} points sampled uniformly on the test surface to the deformed canonical's surface; \
          oracle: least-squares latent fit to CPD of the canonical onto the true instance; \
@@ -425,10 +478,11 @@ pub fn write_reports(
         format!("[\n{}\n]\n", json.join(",\n")).as_bytes(),
     )?;
 
-    // Speed against error: mean error relative to the oracle after each iteration.
-    let curve = |pick: &dyn Fn(&Row) -> &Vec<f64>| -> Vec<(f64, f64)> {
+    // Speed against error: mean error relative to the oracle after each iteration, at each
+    // condition's own mean time per iteration (the pose-noise runs include the alignment).
+    let curve = |pick: &dyn Fn(&Row) -> &Vec<f64>, ms: &dyn Fn(&Row) -> f64| -> Vec<(f64, f64)> {
         let n = rows.iter().map(|r| pick(r).len()).min().unwrap_or(0);
-        let ms = rows.iter().map(|r| r.ms_per_iteration).sum::<f64>() / rows.len().max(1) as f64;
+        let ms = rows.iter().map(ms).sum::<f64>() / rows.len().max(1) as f64;
         (0..n)
             .map(|t| {
                 (
@@ -443,8 +497,18 @@ pub fn write_reports(
         "cumulative time (ms)",
         "error / oracle error",
     )
-    .series("known pose", PALETTE[0], curve(&|r| &r.curve_known))
-    .series("pose noise", PALETTE[1], curve(&|r| &r.curve_noise));
+    .series(
+        "known pose",
+        PALETTE[0],
+        curve(&|r| &r.curve_known, &|r| r.ms / r.iterations.max(1.0)),
+    )
+    .series(
+        "pose noise",
+        PALETTE[1],
+        curve(&|r| &r.curve_noise, &|r| {
+            r.noise_ms / r.noise_iterations.max(1.0)
+        }),
+    );
     write_png(
         &out.join("speed_vs_error.png"),
         &image::DynamicImage::ImageRgb8(plot.render()),

@@ -2,6 +2,7 @@
 
 mod bench;
 mod bench_register;
+mod check_cmd;
 mod cpd_cmd;
 mod eval_cmd;
 mod grad;
@@ -85,6 +86,14 @@ enum Command {
         #[arg(long, default_value_t = 2)]
         test: usize,
     },
+    /// Check a category dataset (DIR with category folders, or one category folder) before
+    /// a long run: sizes, units, up axis, open or unwelded meshes, frame; contact sheets.
+    CheckDataset {
+        dataset: PathBuf,
+        /// Where report.txt and contact_<category>.png go.
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Build a category's latent shape space (CPD from the canonical mesh, then PCA).
     ShapeSpace {
         /// DIR/<category> with canonical.obj and train/*.obj.
@@ -97,6 +106,9 @@ enum Command {
         dims: usize,
         #[command(flatten)]
         cpd: CpdArgs,
+        /// Run even where `check-dataset` finds the category unusable.
+        #[arg(long)]
+        skip_checks: bool,
         /// Output .npz (a .npz.json description is written beside it).
         #[arg(long)]
         out: PathBuf,
@@ -280,6 +292,9 @@ struct EvalArgs {
     from_truth: bool,
     #[command(flatten)]
     shading: ShadingArgs,
+    /// Run even where `check-dataset` finds the set unusable (millimetres, no meshes, ...).
+    #[arg(long)]
+    skip_checks: bool,
     #[arg(long)]
     out: PathBuf,
 }
@@ -341,6 +356,7 @@ fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Info => info(),
+        Command::CheckDataset { dataset, out } => check_cmd::run(&dataset, &out),
         Command::Render(args) => render(&args),
         Command::Grad(args) => grad(&args),
         Command::Bench {
@@ -367,8 +383,11 @@ fn main() {
             canonical,
             dims,
             cpd,
+            skip_checks,
             out,
-        } => shape_cmd::run(&category_dir, canonical.as_deref(), dims, &cpd.params(), &out),
+        } => check_first(&category_dir, skip_checks, canonical.is_some()).and_then(|()| {
+            shape_cmd::run(&category_dir, canonical.as_deref(), dims, &cpd.params(), &out)
+        }),
         Command::Cpd {
             source,
             target,
@@ -694,6 +713,26 @@ fn register(args: &RegisterArgs) -> Result<()> {
 }
 
 /// `vkdr eval`: the default settings with the flags' changes.
+/// `check-dataset`'s checks of one category before building its shape space: stops on what
+/// would make the space meaningless unless `skip` (a missing canonical.obj is fine when
+/// another canonical is named).
+fn check_first(dir: &Path, skip: bool, own_canonical: bool) -> Result<()> {
+    let category = vkdr::check::check_category(dir)?;
+    let fatal: Vec<String> = category
+        .fatal()
+        .filter(|f| !(own_canonical && f.message == "no canonical.obj"))
+        .map(|f| format!("  {}: {}", f.subject, f.message))
+        .collect();
+    if !fatal.is_empty() && !skip {
+        bail!(
+            "{} is not usable as it is (vkdr check-dataset shows all; --skip-checks runs anyway):\n{}",
+            dir.display(),
+            fatal.join("\n")
+        );
+    }
+    Ok(())
+}
+
 fn eval_command(args: &EvalArgs) -> Result<()> {
     if args.dims == 0 {
         bail!("--dims must be at least 1");
@@ -724,6 +763,7 @@ fn eval_command(args: &EvalArgs) -> Result<()> {
         &args.dataset,
         settings,
         args.categories.as_deref(),
+        args.skip_checks,
         &args.out,
     )
 }
@@ -732,13 +772,14 @@ fn eval(
     dataset: &Path,
     settings: vkdr::eval::EvalSettings,
     categories: Option<&str>,
+    skip_checks: bool,
     out: &Path,
 ) -> Result<()> {
     let ctx = Context::new()?;
     let device = format!("{} ({})", ctx.info().name, ctx.info().driver_info);
     let only: Option<Vec<String>> =
         categories.map(|c| c.split(',').map(|s| s.trim().to_string()).collect());
-    let rows = eval_cmd::eval(&ctx, dataset, &settings, only.as_deref())?;
+    let rows = eval_cmd::eval(&ctx, dataset, &settings, only.as_deref(), skip_checks)?;
     eval_cmd::write_reports(out, &rows, &settings, &device)?;
     print!("{}", std::fs::read_to_string(out.join("table.md"))?);
     println!(
