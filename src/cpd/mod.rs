@@ -8,6 +8,12 @@
 //! never forming G either: one path from ten points to 1e5. [`reference`] runs the same
 //! algorithm with a float64 E-step and kernel products.
 //!
+//! The iterations stop on the objective (negative log-likelihood plus the smoothness
+//! term, relative change below the tolerance), at sigma^2's floor, or where an iteration
+//! raises the objective: exact EM never does, so the device's float32 precision has been
+//! reached, and that iteration is undone ([`Stop`]). In the fine phase, SQUAREM jumps
+//! along the iterates where that lowers the objective more than a plain step.
+//!
 //! As in Myronenko's reference code, both sets are normalised before registration, here
 //! jointly by the source's centroid and RMS radius (so that differences of size between
 //! targets survive): beta and lambda are in those units, and results are mapped back, so
@@ -106,8 +112,9 @@ pub struct CpdResult {
     pub deformed: Vec<DVec3>,
     /// The coefficients W (M x 3), in the data's units: deformed = Y + G W.
     pub w: Vec<DVec3>,
-    /// sigma^2 after each iteration (the first entry is the initial value), in normalised
-    /// units.
+    /// sigma^2 of each state the run moved to (the first entry is the initial value), in
+    /// normalised units: one per iteration, except that a kept SQUAREM jump replaces the
+    /// two iterations it extrapolates.
     pub sigma2: Vec<f64>,
     pub iterations: usize,
     /// Why the iterations ended.
