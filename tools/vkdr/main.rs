@@ -836,6 +836,7 @@ fn demo(out: &Path) -> Result<()> {
     let test = Mesh::load_obj(&test_path)?;
     let settings = vkdr::eval::EvalSettings {
         trials: 3,
+        up: vkdr::check::Info::read(&category)?.up,
         ..Default::default()
     };
     let registrar = vkdr::register::Registrar::new(&ctx)?;
@@ -882,7 +883,7 @@ fn demo(out: &Path) -> Result<()> {
     );
 
     // 4. One registration with pose noise, with pictures.
-    let truth = vkdr::eval::view_pose(0.8, 0.5, settings.distance);
+    let truth = vkdr::eval::view_pose_up(settings.up, 0.8, 0.5, settings.distance);
     let view = View {
         camera: settings.camera,
         pose: truth,
