@@ -730,6 +730,14 @@ fn check_first(dir: &Path, skip: bool, own_canonical: bool) -> Result<()> {
             fatal.join("\n")
         );
     }
+    let warnings = category.findings.len() - fatal.len();
+    if warnings > 0 {
+        eprintln!(
+            "{}: {warnings} warnings (vkdr check-dataset {} lists them)",
+            category.name,
+            dir.display()
+        );
+    }
     Ok(())
 }
 
