@@ -273,7 +273,8 @@ pub const SMALLEST_SIDE_M: f64 = 0.005;
 /// Loads and checks the category in `dir` (`canonical.obj`, `train/`, `test/`,
 /// `info.json`). A mesh that does not load is an error naming its file.
 pub fn check_category(dir: &Path) -> Result<Category> {
-    let name = dir
+    let full = dir.canonicalize().unwrap_or_else(|_| dir.to_path_buf());
+    let name = full
         .file_name()
         .unwrap_or_default()
         .to_string_lossy()
@@ -295,7 +296,11 @@ pub fn check_category(dir: &Path) -> Result<Category> {
         );
     }
     if let Some(units) = info.units.as_deref() {
-        if !matches!(units, "m" | "metre" | "meter" | "metres" | "meters") {
+        let plain = units.trim().to_ascii_lowercase();
+        if !matches!(
+            plain.as_str(),
+            "m" | "metre" | "meter" | "metres" | "meters"
+        ) {
             note(
                 Severity::Fatal,
                 "category",

@@ -1,7 +1,8 @@
 //! Non-rigid Coherent Point Drift (Myronenko & Song 2010): moves source points Y onto a
 //! target set X as T = Y + G W, G_ij = exp(-|y_i - y_j|^2 / (2 beta^2)).
 //!
-//! The E-step (P1, Pt1, PX) runs on the device without forming the M x N matrix: one pass
+//! The E-step (P1, Pt1, and per source point the pull sum_n P (x - t) and spread
+//! sum_n P |x - t|^2) runs on the device without forming the M x N matrix: one pass
 //! per target point accumulates a log-sum-exp denominator, one pass per source point the
 //! sums (`glsl/cpd_*.comp`). The M-step ([`m_step`]) solves for W by preconditioned
 //! conjugate gradients whose products G V run on the device (`glsl/gauss_product.comp`),
@@ -298,12 +299,14 @@ pub fn run(
         // lowers the objective below t1's; else the plain second step stands.
         let second = em.update(&first)?;
         iterations += 1;
-        if let Some(jump) = extrapolate(&at.state, &first.state, &second, longest, source) {
+        let jump = extrapolate(&at.state, &first.state, &second, longest, source)
+            .filter(|jump| jump.state.sigma2.is_finite() && jump.state.sigma2 > floor);
+        if let Some(jump) = jump {
             let jumped = em.evaluate(jump.state)?;
-            if jumped.objective < first.objective && jumped.state.sigma2 > floor {
+            if jumped.objective < first.objective {
                 jumps += 1;
                 if jump.alpha <= -longest {
-                    longest *= 4.0;
+                    longest = (4.0 * longest).min(LONGEST_JUMP);
                 }
                 at = jumped;
                 history.push(at.state.sigma2);
@@ -312,13 +315,13 @@ pub fn run(
             }
             longest = (longest / 4.0).max(1.0);
         }
+        history.push(first.state.sigma2);
         let second = em.evaluate(second)?;
         on_iteration(iterations, second.state.sigma2);
         match Progress::of(&first, &second, params.tolerance) {
             Progress::Rose => {
                 iterations -= 1;
                 (at, stop) = (first, Stop::Precision);
-                history.push(at.state.sigma2);
                 break;
             }
             Progress::Converged => {
@@ -465,6 +468,8 @@ fn moved(source: &[DVec3], gw: &Matrix) -> Vec<DVec3> {
         .collect()
 }
 
+/// The longest SQUAREM step a (in units of the plain step).
+const LONGEST_JUMP: f64 = 256.0;
 /// SQUAREM jumps only once sigma^2 is below this fraction of its initial value.
 const FINE: f64 = 1e-3;
 /// The least cosine between two successive EM steps (over G W) for a jump.

@@ -712,7 +712,6 @@ fn register(args: &RegisterArgs) -> Result<()> {
     Ok(())
 }
 
-/// `vkdr eval`: the default settings with the flags' changes.
 /// `check-dataset`'s checks of one category before building its shape space: stops on what
 /// would make the space meaningless unless `skip` (a missing canonical.obj is fine when
 /// another canonical is named).
@@ -730,7 +729,11 @@ fn check_first(dir: &Path, skip: bool, own_canonical: bool) -> Result<()> {
             fatal.join("\n")
         );
     }
-    let warnings = category.findings.len() - fatal.len();
+    let warnings = category
+        .findings
+        .iter()
+        .filter(|f| f.severity == vkdr::check::Severity::Warning)
+        .count();
     if warnings > 0 {
         eprintln!(
             "{}: {warnings} warnings (vkdr check-dataset {} lists them)",
@@ -741,6 +744,7 @@ fn check_first(dir: &Path, skip: bool, own_canonical: bool) -> Result<()> {
     Ok(())
 }
 
+/// `vkdr eval`: the default settings with the flags' changes.
 fn eval_command(args: &EvalArgs) -> Result<()> {
     if args.dims == 0 {
         bail!("--dims must be at least 1");
