@@ -365,43 +365,35 @@ pub fn check_category(dir: &Path) -> Result<Category> {
                 format!("largest side {side:.3e} m: too small for a camera at 0.7 m"),
             );
         }
-        if s.boundary_edges > 0 {
-            note(
-                Severity::Warning,
-                &s.name,
+        let of_the_mesh = [
+            (
+                s.boundary_edges > 0,
                 format!(
                     "open: {} boundary edges (CPD registers it; shading sees its inside)",
                     s.boundary_edges
                 ),
-            );
-        }
-        if s.nonmanifold_edges > 0 {
-            note(
-                Severity::Warning,
-                &s.name,
+            ),
+            (
+                s.nonmanifold_edges > 0,
                 format!("{} edges of more than two faces", s.nonmanifold_edges),
-            );
-        }
-        if s.components > 1 {
-            note(
-                Severity::Warning,
-                &s.name,
+            ),
+            (
+                s.components > 1,
                 format!("{} separate components", s.components),
-            );
-        }
-        if s.duplicate_vertices > 0 {
-            note(
-                Severity::Warning,
-                &s.name,
+            ),
+            (
+                s.duplicate_vertices > 0,
                 format!("{} duplicate vertices (unwelded)", s.duplicate_vertices),
-            );
-        }
-        if s.degenerate_faces > 0 {
-            note(
-                Severity::Warning,
-                &s.name,
+            ),
+            (
+                s.degenerate_faces > 0,
                 format!("{} degenerate faces", s.degenerate_faces),
-            );
+            ),
+        ];
+        for (found, message) in of_the_mesh {
+            if found {
+                note(Severity::Warning, &s.name, message);
+            }
         }
         let Some(r) = reference.as_ref().filter(|r| r.name != s.name) else {
             continue;

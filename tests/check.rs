@@ -3,6 +3,8 @@
 //! is reported, the millimetre mesh stops `check-dataset`, `shape-space` and `eval` before
 //! any work, and the contact sheet shows every mesh.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -18,18 +20,6 @@ fn placed(mesh: &Mesh, rotation: DQuat, scale: f64, offset: DVec3) -> Mesh {
         .map(|p| rotation * p * scale + offset)
         .collect();
     mesh.with_points(&points).unwrap()
-}
-
-/// A lathe without its top cap (the triangles around its last vertex): open.
-fn opened(mesh: &Mesh) -> Mesh {
-    let top = mesh.vertex_count() as u32 - 1;
-    let triangles = mesh
-        .triangles()
-        .iter()
-        .filter(|t| !t.contains(&top))
-        .copied()
-        .collect();
-    Mesh::new(mesh.positions().to_vec(), triangles).unwrap()
 }
 
 fn merged(a: &Mesh, b: &Mesh) -> Mesh {
@@ -54,7 +44,7 @@ fn category(set: &str) -> PathBuf {
     let bottle = placed(&Mesh::bottle(16), z_up, 1.0, DVec3::ZERO);
     let save = |name: &str, mesh: &Mesh| mesh.save_obj(dir.join(name)).unwrap();
     save("canonical.obj", &bottle);
-    save("train/a_open.obj", &opened(&bottle));
+    save("train/a_open.obj", &common::open_top(&bottle));
     let small = placed(&bottle, DQuat::IDENTITY, 0.3, DVec3::new(0.06, 0.0, 0.0));
     save("train/b_two_parts.obj", &merged(&bottle, &small));
     save(

@@ -155,14 +155,7 @@ fn an_open_cup_seen_into_its_opening_is_lit_inside() {
     let ctx = common::context();
     let registrar = Registrar::new(&ctx).unwrap();
     let closed = vkdr::Mesh::lathe(&[(0.04, -0.05), (0.045, 0.05)], 24).unwrap();
-    let top = closed.vertex_count() as u32 - 1;
-    let triangles = closed
-        .triangles()
-        .iter()
-        .filter(|t| !t.contains(&top))
-        .copied()
-        .collect();
-    let cup = vkdr::Mesh::new(closed.positions().to_vec(), triangles).unwrap();
+    let cup = common::open_top(&closed);
     // From 60 degrees above, the light at the camera.
     let pose = eval::view_pose(0.4, 60f64.to_radians(), 0.35);
     let shading = Shading {

@@ -22,3 +22,16 @@ pub fn assert_no_validation_errors(ctx: &Context) {
         panic!("{e}");
     }
 }
+
+/// A lathe (`Mesh::lathe`, `Mesh::bottle`) without its top cap, the triangles around its
+/// last vertex: open at the top, as a single-sheet scan of a cup.
+pub fn open_top(mesh: &vkdr::Mesh) -> vkdr::Mesh {
+    let top = mesh.vertex_count() as u32 - 1;
+    let triangles = mesh
+        .triangles()
+        .iter()
+        .filter(|t| !t.contains(&top))
+        .copied()
+        .collect();
+    vkdr::Mesh::new(mesh.positions().to_vec(), triangles).unwrap()
+}

@@ -177,32 +177,13 @@ pub fn eval(
     }
     let mut checked = Vec::new();
     for dir in &chosen {
-        let category = vkdr::check::check_category(dir)?;
-        let fatal: Vec<String> = category
-            .fatal()
-            .map(|f| format!("  {}: {}", f.subject, f.message))
-            .collect();
+        let category = crate::check_cmd::check_first(dir, skip_checks, false)?;
         let has_tests = category
             .meshes
             .iter()
             .any(|(s, _)| s.role == vkdr::check::Role::Test);
         if !has_tests {
             bail!("{}: test/ has no meshes to evaluate", dir.display());
-        }
-        if !fatal.is_empty() && !skip_checks {
-            bail!(
-                "{} is not usable as it is (vkdr check-dataset shows all; --skip-checks runs anyway):\n{}",
-                dir.display(),
-                fatal.join("\n")
-            );
-        }
-        let warnings = category.findings.len() - fatal.len();
-        if warnings > 0 {
-            eprintln!(
-                "{}: {warnings} warnings (vkdr check-dataset {} lists them)",
-                category.name,
-                dataset.display()
-            );
         }
         checked.push((dir.clone(), category.info.up));
     }

@@ -385,9 +385,9 @@ fn main() {
             cpd,
             skip_checks,
             out,
-        } => check_first(&category_dir, skip_checks, canonical.is_some()).and_then(|()| {
-            shape_cmd::run(&category_dir, canonical.as_deref(), dims, &cpd.params(), &out)
-        }),
+        } => check_cmd::check_first(&category_dir, skip_checks, canonical.is_some()).and_then(
+            |_| shape_cmd::run(&category_dir, canonical.as_deref(), dims, &cpd.params(), &out),
+        ),
         Command::Cpd {
             source,
             target,
@@ -709,38 +709,6 @@ fn register(args: &RegisterArgs) -> Result<()> {
         args.out.display(),
         if shading.is_some() { ", shading_end.png" } else { "" }
     );
-    Ok(())
-}
-
-/// `check-dataset`'s checks of one category before building its shape space: stops on what
-/// would make the space meaningless unless `skip` (a missing canonical.obj is fine when
-/// another canonical is named).
-fn check_first(dir: &Path, skip: bool, own_canonical: bool) -> Result<()> {
-    let category = vkdr::check::check_category(dir)?;
-    let fatal: Vec<String> = category
-        .fatal()
-        .filter(|f| !(own_canonical && f.message == "no canonical.obj"))
-        .map(|f| format!("  {}: {}", f.subject, f.message))
-        .collect();
-    if !fatal.is_empty() && !skip {
-        bail!(
-            "{} is not usable as it is (vkdr check-dataset shows all; --skip-checks runs anyway):\n{}",
-            dir.display(),
-            fatal.join("\n")
-        );
-    }
-    let warnings = category
-        .findings
-        .iter()
-        .filter(|f| f.severity == vkdr::check::Severity::Warning)
-        .count();
-    if warnings > 0 {
-        eprintln!(
-            "{}: {warnings} warnings (vkdr check-dataset {} lists them)",
-            category.name,
-            dir.display()
-        );
-    }
     Ok(())
 }
 
