@@ -32,7 +32,7 @@ vec4 antialiased_value(uint view, ivec2 p, ivec2 size, uint id) {
         ivec2 affected = pair.affects_g ? pair.g : pair.f;
         if (affected != p) continue;
         ivec2 other = pair.affects_g ? pair.f : pair.g;
-        a += pair.weight * (colour_at(vd, view, other, id_at(other, view)) - c);
+        a += pair.weight * blended(colour_at(vd, view, other, id_at(other, view)) - c);
     }
     return a;
 }

@@ -48,7 +48,7 @@ void crossing_backward(ViewData vd, uint view, Pair pair) {
     vec4 ga = loss_gradient(pixel_index(affected, view), view);
     vec4 cf = colour_at(vd, view, pair.f, id_at(pair.f, view));
     vec4 cg = colour_at(vd, view, pair.g, id_at(pair.g, view));
-    float g_alpha = dot(ga, cf - cg);
+    float g_alpha = dot(ga, blended(cf - cg));
     if (g_alpha == 0.0) return;
     Crossing c = pair.crossing;
     float d = c.ef - c.eb;
@@ -94,7 +94,7 @@ void handle_pixel(uint index) {
             // out[a] += w (c[o] - c[a]): d/dc[a] = -w, d/dc[o] = +w.
             ivec2 affected = pair.affects_g ? pair.g : pair.f;
             vec4 ga = loss_gradient(pixel_index(affected, view), view);
-            g_colour += (affected == p ? -pair.weight : pair.weight) * ga;
+            g_colour += (affected == p ? -pair.weight : pair.weight) * blended(ga);
         }
     }
     if (!interpolated) return;

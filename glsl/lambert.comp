@@ -10,7 +10,7 @@
 // places where n . x changes sign, so the backward carries it as a factor.
 // The area-weighted normal m only needs each vertex's own triangles (the `incident` list),
 // so every stage writes one vertex of one view per invocation, without atomics:
-//   stage 0: attributes[view][v] = a;
+//   stage 0: attributes[view][v][0] = a (pc.stride channels a vertex: with depth, 2);
 //   stage 1: grad_normal[view][v] = dL/dm from dL/da (grad_attributes);
 //   stage 2: grad_camera[view][v] += dL/dx through every m that x is a corner of, with
 //            d(e1 x e2) . g = de1 . (e2 x g) + de2 . (g x e1), e1 = x1 - x0, e2 = x2 - x0.
@@ -24,8 +24,8 @@ layout(set = 0, binding = 1, std430) readonly buffer Triangles { uint triangles[
 layout(set = 0, binding = 2, std430) readonly buffer Views { ViewData views[]; };
 layout(set = 0, binding = 3, std430) readonly buffer IncidentStart { uint incident_start[]; };  // [vertex + 1]
 layout(set = 0, binding = 4, std430) readonly buffer Incident { uint incident[]; };  // 3 triangle + corner
-layout(set = 0, binding = 5, std430) buffer Attributes { float attributes[]; };        // [view][vertex]
-layout(set = 0, binding = 6, std430) readonly buffer GradAttributes { float grad_attributes[]; };  // [view][vertex]
+layout(set = 0, binding = 5, std430) buffer Attributes { float attributes[]; };        // [view][vertex][stride]
+layout(set = 0, binding = 6, std430) readonly buffer GradAttributes { float grad_attributes[]; };  // [view][vertex][stride]
 layout(set = 0, binding = 7, std430) buffer GradNormal { float grad_normal[]; };       // [view][vertex][3]
 layout(set = 0, binding = 8, std430) buffer GradCamera { float grad_camera[]; };       // [view][vertex][3]
 
@@ -36,6 +36,7 @@ layout(push_constant, std430) uniform Constants {
     float light_x;
     float light_y;
     float light_z;
+    uint stride;  // attribute channels a vertex (the shade is channel 0)
 } pc;
 
 vec3 camera_position(mat4 object_to_camera, uint v) {
@@ -92,10 +93,10 @@ void main() {
     float side = dot(n, camera_position(to_camera, v)) > 0.0 ? -1.0 : 1.0;
     float lit = side * dot(n, light);
     if (pc.stage == 0u) {
-        attributes[slot] = pc.ambient + (1.0 - pc.ambient) * max(lit, 0.0);
+        attributes[slot * pc.stride] = pc.ambient + (1.0 - pc.ambient) * max(lit, 0.0);
         return;
     }
-    vec3 g_n = lit > 0.0 ? grad_attributes[slot] * (1.0 - pc.ambient) * side * light : vec3(0.0);
+    vec3 g_n = lit > 0.0 ? grad_attributes[slot * pc.stride] * (1.0 - pc.ambient) * side * light : vec3(0.0);
     vec3 g_m = len > 0.0 ? (g_n - n * dot(n, g_n)) / len : vec3(0.0);
     grad_normal[3u * slot] = g_m.x;
     grad_normal[3u * slot + 1u] = g_m.y;

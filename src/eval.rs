@@ -437,6 +437,7 @@ pub fn render_shading(
             observed: &vec![0.0; pixels],
             attributes: None,
             shading: Some(shading),
+            depth: None,
         },
     )?;
     Ok(scene.evaluate(ctx, registrar.renderer())?.antialiased)

@@ -65,6 +65,7 @@ fn gradients_are_bit_identical_run_to_run() {
             observed: &disc,
             attributes: None,
             shading,
+            depth: None,
         };
         let (a, b) = (evaluate(&ctx, &desc), evaluate(&ctx, &desc));
         let name = format!("{} loss, shading {}", loss.name(), shading.is_some());

@@ -14,7 +14,9 @@ mod common;
 use glam::{DMat3, DVec3};
 
 use vkdr::diff::reference::{self, Problem, RigidPose};
-use vkdr::diff::{neighbours, DiffRenderer, Evaluation, Scene, SceneDesc, Shading};
+use vkdr::diff::{
+    neighbours, DepthLoss, DiffRenderer, Evaluation, ObservedDepth, Scene, SceneDesc, Shading,
+};
 use vkdr::loss::Loss;
 use vkdr::raster::View;
 use vkdr::{Camera, Mesh, Pose};
@@ -32,6 +34,8 @@ struct Case {
     observed: Vec<f32>,
     attributes: Option<(Vec<f32>, u32)>,
     shading: Option<Shading>,
+    /// Observed depth [view][row][column] and how it is compared.
+    depth: Option<(Vec<f32>, DepthLoss)>,
 }
 
 /// What a check measured.
@@ -100,6 +104,10 @@ fn device_scene(ctx: &vkdr::gpu::Context, case: &Case) -> Scene {
             observed: &case.observed,
             attributes,
             shading: case.shading,
+            depth: case
+                .depth
+                .as_ref()
+                .map(|(depth, loss)| ObservedDepth { depth, loss: *loss }),
         },
     )
     .expect("scene")
@@ -138,6 +146,10 @@ fn check_vertices(case: &Case, vertices: Vertices, step: f64) -> (Report, Evalua
     let triangles = case.mesh.triangles();
     let adjacency = neighbours(&case.mesh);
     let observed: Vec<f64> = case.observed.iter().map(|&v| v as f64).collect();
+    let depth64: Option<Vec<f64>> = case
+        .depth
+        .as_ref()
+        .map(|(d, _)| d.iter().map(|&v| v as f64).collect());
     let attributes64: Option<Vec<f64>> = case
         .attributes
         .as_ref()
@@ -154,6 +166,9 @@ fn check_vertices(case: &Case, vertices: Vertices, step: f64) -> (Report, Evalua
             .zip(case.attributes.as_ref().map(|(_, c)| *c as usize)),
         shading: case.shading,
         loss: case.loss,
+        depth: depth64
+            .as_deref()
+            .zip(case.depth.as_ref().map(|(_, loss)| *loss)),
     };
     let positions: Vec<DVec3> = case.mesh.points();
     let poses: Vec<RigidPose> = case.views.iter().map(|v| rigid(&v.pose)).collect();
@@ -311,6 +326,7 @@ fn sphere_case(loss: Loss, radius: f32, distance: f64, size: u32) -> Case {
         observed: disc(size, size, 0.58 * s, 0.43 * s, 0.3 * s),
         attributes: None,
         shading: None,
+        depth: None,
     }
 }
 
@@ -389,6 +405,106 @@ fn lambert_shading_in_two_views() {
     assert_gradients_match(&grey_disc_case(2));
 }
 
+/// Adds an observed depth to every view: a tilted plane through the sphere, so that the
+/// residuals cover both sides of the Huber cost's bend (1 cm), with every 7th pixel
+/// unmeasured (0) and a few measured outside the rendered silhouette.
+fn with_depth(mut case: Case) -> Case {
+    let (w, h) = (case.views[0].camera.width, case.views[0].camera.height);
+    let mut depth = Vec::new();
+    for view in &case.views {
+        let centre = view.pose.translation.z;
+        for y in 0..h {
+            for x in 0..w {
+                let i = (y * w + x) as usize;
+                let tilt = 0.002 * (x as f64 - w as f64 / 2.0) + 0.001 * y as f64;
+                let plane = centre - 0.08 + tilt * 64.0 / w as f64;
+                depth.push(if i % 7 == 3 { 0.0 } else { plane as f32 });
+            }
+        }
+    }
+    case.depth = Some((depth, DepthLoss::default()));
+    case
+}
+
+#[test]
+fn mask_with_depth() {
+    let case = with_depth(sphere_case(Loss::Mse, 0.1, 0.45, 64));
+    let (_, gpu) = check(&case);
+    // The compared image holds coverage and the depth of the sphere's front.
+    let depths: Vec<f32> = gpu.antialiased.chunks(2).map(|c| c[1]).collect();
+    let covered = depths.iter().filter(|&&z| z > 0.0).count();
+    assert!(covered > 500, "{covered} pixels with depth");
+    assert!(depths.iter().all(|&z| z == 0.0 || (0.3..0.5).contains(&z)));
+    let report = assert_gradients_match(&case);
+    assert!(report.loss > 0.0);
+}
+
+#[test]
+fn depth_term_alone_has_the_same_gradients() {
+    // A mask equal to the rendering's coverage leaves (almost) only the depth term.
+    let case = with_depth(sphere_case(Loss::Mse, 0.1, 0.45, 48));
+    let ctx = common::context();
+    let renderer = DiffRenderer::new(&ctx).unwrap();
+    let ids = device_scene(&ctx, &case)
+        .evaluate(&ctx, &renderer)
+        .unwrap()
+        .ids;
+    let mut matched = case.clone();
+    matched.observed = ids.iter().map(|&id| (id > 0) as u32 as f32).collect();
+    assert_gradients_match(&matched);
+}
+
+#[test]
+fn shading_with_depth_in_two_views() {
+    let mut case = grey_disc_case(2);
+    case = with_depth(case);
+    assert_gradients_match(&case);
+}
+
+#[test]
+fn depth_needs_the_mse_loss_and_valid_depths() {
+    let ctx = common::context();
+    let case = with_depth(sphere_case(Loss::Iou, 0.1, 0.45, 32));
+    let Err(e) = Scene::new(
+        &ctx,
+        &SceneDesc {
+            mesh: &case.mesh,
+            views: &case.views,
+            loss: case.loss,
+            observed: &case.observed,
+            attributes: None,
+            shading: None,
+            depth: case
+                .depth
+                .as_ref()
+                .map(|(depth, loss)| ObservedDepth { depth, loss: *loss }),
+        },
+    ) else {
+        panic!("iou with depth was accepted");
+    };
+    assert!(e.to_string().contains("mse with depth"), "{e}");
+    let mut bad = with_depth(sphere_case(Loss::Mse, 0.1, 0.45, 32));
+    bad.depth.as_mut().unwrap().0[5] = -1.0;
+    let Err(e) = Scene::new(
+        &ctx,
+        &SceneDesc {
+            mesh: &bad.mesh,
+            views: &bad.views,
+            loss: bad.loss,
+            observed: &bad.observed,
+            attributes: None,
+            shading: None,
+            depth: bad
+                .depth
+                .as_ref()
+                .map(|(depth, loss)| ObservedDepth { depth, loss: *loss }),
+        },
+    ) else {
+        panic!("a negative depth was accepted");
+    };
+    assert!(e.to_string().contains("observed depth holds -1"), "{e}");
+}
+
 #[test]
 fn triangles_much_smaller_than_a_pixel() {
     // 1200 triangles on a sphere about 14 pixels across.
@@ -441,6 +557,7 @@ fn triangle_crossing_near_plane() {
         observed: disc(64, 64, 30.0, 40.0, 15.0),
         attributes: None,
         shading: None,
+        depth: None,
     };
     assert_gradients_match(&case);
 }
@@ -693,6 +810,7 @@ fn images_past_the_storage_buffer_range_are_refused() {
             observed: &observed,
             attributes: None,
             shading: None,
+            depth: None,
         },
     );
     match result {

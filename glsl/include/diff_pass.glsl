@@ -44,6 +44,9 @@ const uint ATTRIBUTE_MAX = 6u;  // the same for attribute-gradient terms
 // interpolation and the crossings of its two forward pairs).
 const uint TERMS_PER_LISTED = 3u;
 
+// As `MAX_DEPTH_RESIDUAL` in src/diff/mod.rs (metres).
+const float MAX_DEPTH_RESIDUAL = 1000.0;
+
 // Losses (`loss::Loss`): mean squared error, soft IoU, signed-distance-weighted coverage.
 const uint LOSS_MSE = 0u;
 const uint LOSS_IOU = 1u;
@@ -66,6 +69,10 @@ layout(push_constant, std430) uniform Constants {
     int stats_shift;
     uint stage;  // antialias.comp: 0 finds the pairs, 1 antialiases; its backward: 0
                  // measures the largest terms, 1 adds them
+    uint depth;     // 1: the last channel is camera-space depth (see depth_term)
+    uint coverage;  // 1: channel 0 is coverage, a constant attribute 1 (mask with depth)
+    float depth_scale;   // metres: residuals up to it cost quadratically (Huber)
+    float depth_weight;
 } pc;
 
 #include "diff.glsl"
@@ -82,7 +89,44 @@ void store_antialiased(uint index, vec4 a) {
 // Whether the pair of pixels showing ids a and b can change the image: with coverage only
 // where one is background (both colours are 1 otherwise, so antialiasing moves nothing).
 bool pair_matters(uint a, uint b) {
-    return a != b && (pc.channels > 0u || (a == 0u) != (b == 0u));
+    bool interpolated = pc.channels > 0u && pc.coverage == 0u;
+    return a != b && (interpolated || (a == 0u) != (b == 0u));
+}
+
+// Depth (pc.depth = 1) is the last channel: the interpolated camera-space z of the front
+// surface at the pixel centre, compared only where the pixel is covered and the
+// observation measured depth (observed > 0). It is not antialiased: the silhouette's
+// gradient comes from the mask (or shading) channel, which is; so depth is a smooth
+// function of the vertices and pose within each visibility piece, and `blended` removes
+// it from every antialiasing term and its backward.
+vec4 blended(vec4 v) {
+    if (pc.depth != 0u) v[pc.channels - 1u] = 0.0;
+    return v;
+}
+
+// The channels compared by mse (all but depth).
+uint mse_channels() { return max(pc.channels, 1u) - pc.depth; }
+
+// Whether pixel `index` compares depth; `residual` is rendered - observed there.
+bool depth_compared(uint index, vec4 a, out float residual) {
+    residual = 0.0;
+    if (pc.depth == 0u || ids[index] == 0u) return false;
+    uint ch = pc.channels - 1u;
+    float o = observed[index * pc.channels + ch];
+    // Residuals past 1 km are clamped (a bound the fixed-point loss sums rely on).
+    residual = clamp(a[ch] - o, -MAX_DEPTH_RESIDUAL, MAX_DEPTH_RESIDUAL);
+    return o > 0.0;
+}
+
+// The depth term of one pixel, Huber in units of pc.depth_scale (s): (r / s)^2 within s,
+// 2 |r| / s - 1 beyond (continuous with its derivative), times the weight / pixels.
+float depth_term(float r, float n) {
+    float u = abs(r) / pc.depth_scale;
+    return pc.depth_weight * (u <= 1.0 ? u * u : 2.0 * u - 1.0) / n;
+}
+
+float depth_term_gradient(float r, float n) {
+    return pc.depth_weight * 2.0 * clamp(r / pc.depth_scale, -1.0, 1.0) / (pc.depth_scale * n);
 }
 
 const ivec2 STEPS[4] = ivec2[4](ivec2(1, 0), ivec2(0, 1), ivec2(-1, 0), ivec2(0, -1));
@@ -117,8 +161,9 @@ vec3 loss_terms(uint index, vec4 a) {
     vec4 o = load_observed(index);
     float n = float(pc.width * pc.height);
     if (pc.loss == LOSS_MSE) {
-        vec4 d = a - o;
-        return vec3(dot(d, d) / (n * float(image_channels())), 0.0, 0.0);
+        // Only called for the background (a = 0), where depth is not compared.
+        vec4 d = blended(a - o);
+        return vec3(dot(d, d) / (n * float(mse_channels())), 0.0, 0.0);
     } else if (pc.loss == LOSS_IOU) {
         return vec3(0.0, a.x * o.x, a.x + o.x - a.x * o.x);
     }
@@ -131,7 +176,10 @@ vec3 loss_excess(uint index, vec4 a) {
     float n = float(pc.width * pc.height);
     if (pc.loss == LOSS_MSE) {
         // (a - o)^2 - o^2 = a (a - 2 o)
-        return vec3(dot(a, a - 2.0 * o) / (n * float(image_channels())), 0.0, 0.0);
+        float excess = dot(blended(a), blended(a - 2.0 * o)) / (n * float(mse_channels()));
+        float r;
+        if (depth_compared(index, a, r)) excess += depth_term(r, n);
+        return vec3(excess, 0.0, 0.0);
     } else if (pc.loss == LOSS_IOU) {
         return vec3(0.0, a.x * o.x, a.x * (1.0 - o.x));
     }
@@ -145,7 +193,9 @@ vec4 loss_gradient(uint index, uint view) {
     vec4 o = load_observed(index);
     vec4 g = vec4(0.0);
     if (pc.loss == LOSS_MSE) {
-        g = 2.0 * (a - o) / (n * float(image_channels()));
+        g = 2.0 * blended(a - o) / (n * float(mse_channels()));
+        float r;
+        if (depth_compared(index, a, r)) g[pc.channels - 1u] = depth_term_gradient(r, n);
     } else if (pc.loss == LOSS_IOU) {
         float intersection = stats[4u * view + 1u];
         float union_ = stats[4u * view + 2u];

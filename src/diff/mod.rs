@@ -5,7 +5,9 @@
 //! across silhouette edges between adjacent pixels (the idea of nvdiffrast's `antialias`,
 //! with mesh topology to find silhouette edges and a walk across triangles smaller than a
 //! pixel), evaluate the loss, and push dL/dpixel back to every vertex and to each view's
-//! pose. Every sum that threads add to in parallel is int64 fixed point at a scale chosen
+//! pose. A depth image can be compared too ([`ObservedDepth`]): inside the silhouette, as
+//! one more interpolated channel (camera-space z, exact with perspective-correct
+//! barycentrics), with a robust cost. Every sum that threads add to in parallel is int64 fixed point at a scale chosen
 //! from the data, or a reduction in a fixed order (`glsl/include/fixed_point.glsl`), so the
 //! same inputs give bit-identical results on the same device, run after run.
 //!
@@ -35,6 +37,11 @@ const POSE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/pose_gradient.comp
 const RESOLVE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/fixed_resolve.comp.spv"));
 const LAMBERT: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/lambert.comp.spv"));
 const BOUNDS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/bounds.comp.spv"));
+const DEPTH: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/depth.comp.spv"));
+
+/// Depth residuals are clamped to this many metres (as in `glsl/include/diff_pass.glsl`),
+/// which bounds the fixed-point loss sums.
+pub const MAX_DEPTH_RESIDUAL: f64 = 1000.0;
 
 /// Words of the boxes buffer for `views` views (layout in `glsl/bounds.comp`).
 fn box_words(views: u32) -> u64 {
@@ -211,6 +218,54 @@ impl Shading {
     }
 }
 
+/// How a depth observation is compared (see [`ObservedDepth`]): per pixel where the
+/// rendering covers the pixel centre and the observation measured depth (> 0), a Huber
+/// cost of the residual r = rendered - observed in units of `scale`, (r / s)^2 within s
+/// and 2 |r| / s - 1 beyond (so a sensor's outliers and mixed pixels cost linearly),
+/// times `weight`, averaged over the image's pixels as the mask term is.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DepthLoss {
+    /// Metres: residuals up to this cost quadratically.
+    pub scale: f64,
+    /// Weight against the mask (or shading) term: at 1, a pixel whose depth is off by
+    /// `scale` costs as much as a pixel of mask that is wrong.
+    pub weight: f64,
+}
+
+impl Default for DepthLoss {
+    /// 1 cm, weight 1: a consumer RGB-D sensor's noise at half a metre is a few mm.
+    fn default() -> Self {
+        Self {
+            scale: 0.01,
+            weight: 1.0,
+        }
+    }
+}
+
+impl DepthLoss {
+    /// An error for a scale or weight that is not positive and finite.
+    pub fn validate(&self) -> Result<()> {
+        for (what, value) in [("scale", self.scale), ("weight", self.weight)] {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(Error::InvalidInput(format!(
+                    "the depth loss {what} must be positive and finite, not {value}"
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// An observed depth image of every view, compared with the rendered camera-space depth
+/// besides the mask (or shading): [view][row][column] in metres, 0 where nothing was
+/// measured. Depth is compared inside the rendered silhouette only and is not
+/// antialiased; the silhouette's own gradient comes from the mask term.
+#[derive(Clone, Copy, Debug)]
+pub struct ObservedDepth<'a> {
+    pub depth: &'a [f32],
+    pub loss: DepthLoss,
+}
+
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct LambertConstants {
@@ -218,6 +273,16 @@ struct LambertConstants {
     stage: u32,
     ambient: f32,
     light: [f32; 3],
+    stride: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct DepthConstants {
+    vertex_count: u32,
+    stage: u32,
+    channels: u32,
+    coverage: u32,
 }
 
 #[repr(C)]
@@ -231,6 +296,10 @@ struct PassConstants {
     partial_slots: u32,
     stats_shift: i32,
     stage: u32,
+    depth: u32,
+    coverage: u32,
+    depth_scale: f32,
+    depth_weight: f32,
 }
 
 #[repr(C)]
@@ -272,11 +341,14 @@ fn stats_shift(desc: &SceneDesc, width: u32, height: u32) -> i32 {
     let pixels = width as f64 * height as f64;
     // Loss sums are per-pixel terms over N pixels divided by N; intersection and union
     // are not divided.
-    let bound = match desc.loss {
+    let mut bound = match desc.loss {
         Loss::Mse => (rendered + observed).powi(2),
         Loss::Iou => pixels * (1.0 + observed).powi(2),
         Loss::Distance => (width as f64).hypot(height as f64),
     };
+    if let Some(depth) = &desc.depth {
+        bound += depth.loss.weight * (2.0 * MAX_DEPTH_RESIDUAL / depth.loss.scale + 1.0);
+    }
     (61 - bound.max(1e-30).log2().ceil() as i32).clamp(-60, 120)
 }
 
@@ -292,6 +364,7 @@ pub struct DiffRenderer {
     resolve: ComputePipeline,
     lambert: ComputePipeline,
     bounds: ComputePipeline,
+    depth: ComputePipeline,
     distance: DistanceField,
 }
 
@@ -358,6 +431,13 @@ impl DiffRenderer {
                 std::mem::size_of::<LambertConstants>() as u32,
             )?,
             bounds: ComputePipeline::new(ctx, "bounds", &spirv(BOUNDS)?, &bindings, pass_bytes)?,
+            depth: ComputePipeline::new(
+                ctx,
+                "depth",
+                &spirv(DEPTH)?,
+                &[BindingKind::StorageBuffer; 5],
+                std::mem::size_of::<DepthConstants>() as u32,
+            )?,
             distance: DistanceField::new(ctx)?,
         })
     }
@@ -381,6 +461,9 @@ pub struct SceneDesc<'a> {
     /// Compare Lambert shading (one channel, computed on the device for every view)
     /// instead; excludes `attributes`.
     pub shading: Option<Shading>,
+    /// Compare depth too (with the mse loss): the compared image gains a last channel,
+    /// the rendered depth.
+    pub depth: Option<ObservedDepth<'a>>,
 }
 
 /// Device buffers of one differentiable scene: mesh, views, G-buffer, observation and
@@ -432,7 +515,12 @@ pub struct Scene {
     pairs_x: Buffer,
     pairs_y: Buffer,
     loss: Loss,
+    /// Channels of every vertex's attributes (0: coverage without attributes).
     channels: u32,
+    /// With depth: how it is compared (its channel is the last).
+    depth: Option<DepthLoss>,
+    /// With depth and a mask: channel 0 is coverage, a constant attribute 1.
+    coverage: bool,
 }
 
 /// Results of one evaluation, read back to the host.
@@ -448,7 +536,8 @@ pub struct Evaluation {
     /// dL/d(attribute), [vertex][channel], summed over views (empty without attributes;
     /// with shading, dL/d(shade)).
     pub attribute_gradient: Vec<f32>,
-    /// The antialiased compared image, [view][row][column][channel].
+    /// The antialiased compared image, [view][row][column][channel] (with depth, the last
+    /// channel is the rendered depth at each covered pixel centre, not antialiased).
     pub antialiased: Vec<f32>,
     /// Triangle id + 1 per pixel, [view][row][column].
     pub ids: Vec<u32>,
@@ -553,30 +642,56 @@ impl Scene {
                 })
             }
         };
-        // Every view has its own attributes: given ones repeated, shading's written on the
-        // device.
+        if let Some(depth) = &desc.depth {
+            depth.loss.validate()?;
+        }
+        // With depth, every vertex gains a last channel (written on the device), and a mask
+        // becomes a constant channel 0 (coverage) so that depth can be interpolated.
+        let with_depth = desc.depth.is_some() as u32;
+        let coverage = desc.depth.is_some() && desc.attributes.is_none() && lambert.is_none();
+        // Every view has its own attributes: given ones repeated, shading's and depth's
+        // written on the device.
         let (attributes, channels) = match (desc.attributes, &lambert) {
-            (None, None) => (Buffer::from_slice(ctx, "attributes", &[0.0f32])?, 0),
-            (None, Some(_)) => (
-                Buffer::new(ctx, "shading", n as u64 * vertices * 4, BufferKind::Device)?,
-                1,
-            ),
+            (None, None) if !coverage => (Buffer::from_slice(ctx, "attributes", &[0.0f32])?, 0),
+            (None, _) => {
+                let channels = 1 + with_depth;
+                let bytes = n as u64 * vertices * channels as u64 * 4;
+                (
+                    Buffer::new(ctx, "attributes", bytes, BufferKind::Device)?,
+                    channels,
+                )
+            }
             (Some((values, channels)), _) => {
-                if !(1..=4).contains(&channels)
+                if !(1..=4 - with_depth).contains(&channels)
                     || values.len() != desc.mesh.vertex_count() * channels as usize
                 {
                     return Err(Error::InvalidInput(format!(
-                        "{} attribute values for {} vertices x {channels} channels (1 to 4)",
+                        "{} attribute values for {} vertices x {channels} channels (1 to {}{})",
                         values.len(),
-                        desc.mesh.vertex_count()
+                        desc.mesh.vertex_count(),
+                        4 - with_depth,
+                        if with_depth > 0 { " with depth" } else { "" }
                     )));
                 }
-                let repeated = values.repeat(n as usize);
-                (Buffer::from_slice(ctx, "attributes", &repeated)?, channels)
+                let stride = (channels + with_depth) as usize;
+                let mut per_view = vec![0f32; desc.mesh.vertex_count() * stride];
+                for (row, given) in per_view
+                    .chunks_mut(stride)
+                    .zip(values.chunks(channels as usize))
+                {
+                    row[..channels as usize].copy_from_slice(given);
+                }
+                let repeated = per_view.repeat(n as usize);
+                (
+                    Buffer::from_slice(ctx, "attributes", &repeated)?,
+                    channels + with_depth,
+                )
             }
         };
         if channels > 0 && desc.loss != Loss::Mse {
-            let compared = if lambert.is_some() {
+            let compared = if desc.depth.is_some() {
+                "depth"
+            } else if lambert.is_some() {
                 "shading"
             } else {
                 "attributes"
@@ -587,9 +702,10 @@ impl Scene {
             )));
         }
         let image_channels = channels.max(1) as u64;
-        if desc.observed.len() as u64 != pixels * image_channels {
+        let given_channels = image_channels - with_depth as u64;
+        if desc.observed.len() as u64 != pixels * given_channels {
             return Err(Error::InvalidInput(format!(
-                "observed images hold {} values, expected {n} views x {w} x {h} x {image_channels}",
+                "observed images hold {} values, expected {n} views x {w} x {h} x {given_channels}",
                 desc.observed.len()
             )));
         }
@@ -598,7 +714,30 @@ impl Scene {
                 "observed images contain NaN or Inf".into(),
             ));
         }
+        if let Some(depth) = &desc.depth {
+            if depth.depth.len() as u64 != pixels {
+                return Err(Error::InvalidInput(format!(
+                    "observed depth holds {} values, expected {n} views x {w} x {h}",
+                    depth.depth.len()
+                )));
+            }
+            if let Some(bad) = depth.depth.iter().find(|v| !(v.is_finite() && **v >= 0.0)) {
+                return Err(Error::InvalidInput(format!(
+                    "observed depth holds {bad}: depths are metres, >= 0 (0: not measured)"
+                )));
+            }
+        }
         check_scene_fits(ctx, (w, h, n), image_channels, vertices, channels)?;
+        // The compared image's channels side by side: the given ones, then depth.
+        let observed: Vec<f32> = match &desc.depth {
+            None => desc.observed.to_vec(),
+            Some(depth) => desc
+                .observed
+                .chunks(given_channels as usize)
+                .zip(depth.depth)
+                .flat_map(|(given, &d)| given.iter().copied().chain([d]))
+                .collect(),
+        };
         let device = |name, bytes| Buffer::new(ctx, name, bytes, BufferKind::Device);
         let with_distance = desc.loss == Loss::Distance;
         // One partial loss sum per subgroup of every 8 x 8 workgroup.
@@ -614,7 +753,7 @@ impl Scene {
             neighbours: Buffer::from_slice(ctx, "neighbours", &neighbours(desc.mesh))?,
             attributes,
             lambert,
-            observed: Buffer::from_slice(ctx, "observed", desc.observed)?,
+            observed: Buffer::from_slice(ctx, "observed", &observed)?,
             distance: device("distance field", if with_distance { pixels * 4 } else { 4 })?,
             distance_scratch: if with_distance {
                 let bytes = DistanceField::scratch_bytes(w, h, n);
@@ -661,6 +800,8 @@ impl Scene {
             views,
             loss: desc.loss,
             channels,
+            depth: desc.depth.map(|d| d.loss),
+            coverage,
         })
     }
 
@@ -754,6 +895,10 @@ impl Scene {
             partial_slots: self.partial_slots,
             stats_shift: self.stats_shift,
             stage,
+            depth: self.depth.is_some() as u32,
+            coverage: self.coverage as u32,
+            depth_scale: self.depth.map_or(1.0, |d| d.scale as f32),
+            depth_weight: self.depth.map_or(0.0, |d| d.weight as f32),
         }
     }
 
@@ -841,6 +986,7 @@ impl Scene {
         }
         marks.pass(rec, "clear");
         self.record_lambert(renderer, rec, 0);
+        self.record_depth(renderer, rec, 0);
         marks.pass(rec, "shading");
         renderer
             .rasterizer
@@ -965,6 +1111,7 @@ impl Scene {
         marks.pass(rec, "resolve");
         self.record_lambert(renderer, rec, 1);
         self.record_lambert(renderer, rec, 2);
+        self.record_depth(renderer, rec, 1);
         marks.pass(rec, "shading backward");
 
         let pose_bindings = [
@@ -1020,6 +1167,33 @@ impl Scene {
                 stage,
                 ambient: lambert.ambient,
                 light: lambert.light,
+                stride: self.channels,
+            },
+            Groups::Count(vertices.div_ceil(64), 1, self.views.count()),
+        );
+        rec.memory_barrier();
+    }
+
+    /// With depth, one stage of `glsl/depth.comp` (and a barrier after it).
+    fn record_depth(&self, renderer: &DiffRenderer, rec: &mut Recorder, stage: u32) {
+        if self.depth.is_none() {
+            return;
+        }
+        let vertices = self.mesh.vertex_count();
+        rec.run_compute(
+            &renderer.depth,
+            &[
+                Binding::buffer(self.mesh.positions()),
+                Binding::buffer(self.views.views()),
+                Binding::buffer(&self.attributes),
+                Binding::buffer(&self.grad_attributes),
+                Binding::buffer(&self.grad_camera),
+            ],
+            &DepthConstants {
+                vertex_count: vertices,
+                stage,
+                channels: self.channels,
+                coverage: self.coverage as u32,
             },
             Groups::Count(vertices.div_ceil(64), 1, self.views.count()),
         );

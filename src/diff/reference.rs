@@ -8,7 +8,7 @@
 
 use glam::{DMat3, DVec2, DVec3};
 
-use super::{Shading, NO_NEIGHBOUR};
+use super::{DepthLoss, Shading, MAX_DEPTH_RESIDUAL, NO_NEIGHBOUR};
 use crate::camera::Camera;
 use crate::loss::{reference as loss_reference, Loss};
 
@@ -33,6 +33,15 @@ pub struct Problem<'a> {
     /// Lambert shading instead of attributes (one channel).
     pub shading: Option<Shading>,
     pub loss: Loss,
+    /// Observed depth, [view][row][column] (0: not measured), and how it is compared.
+    pub depth: Option<(&'a [f64], DepthLoss)>,
+}
+
+/// The depth term of one pixel with residual r (as `depth_term` in
+/// `glsl/include/diff_pass.glsl`), over `pixels` pixels.
+pub fn depth_term(loss: &DepthLoss, r: f64, pixels: f64) -> f64 {
+    let u = r.clamp(-MAX_DEPTH_RESIDUAL, MAX_DEPTH_RESIDUAL).abs() / loss.scale;
+    loss.weight * if u <= 1.0 { u * u } else { 2.0 * u - 1.0 } / pixels
 }
 
 /// A pose as the model takes it: camera = rotation * object + translation.
@@ -48,7 +57,8 @@ pub struct Output {
     pub loss: f64,
     /// Loss of each view.
     pub view_losses: Vec<f64>,
-    /// Antialiased images, [view][row][column][channel].
+    /// Antialiased images, [view][row][column][channel] (with depth, a last channel: the
+    /// depth at covered pixel centres, 0 elsewhere).
     pub antialiased: Vec<f64>,
 }
 
@@ -377,14 +387,31 @@ pub fn evaluate(problem: &Problem, positions: &[DVec3], poses: &[RigidPose]) -> 
         } else {
             &[][..]
         };
-        view_losses.push(loss_reference::loss(
-            problem.loss,
-            &a,
-            observed,
-            distance,
-            channels,
-        ));
-        antialiased.extend(a);
+        let mut view_loss = loss_reference::loss(problem.loss, &a, observed, distance, channels);
+        match problem.depth {
+            None => antialiased.extend(a),
+            Some((depth, loss)) => {
+                let depth = &depth[offset_ids..offset_ids + n];
+                let (width, height) = (camera.width as usize, camera.height as usize);
+                for y in 0..height {
+                    for x in 0..width {
+                        let i = y * width + x;
+                        let id = model.id((x, y));
+                        let z = if id == 0 {
+                            0.0
+                        } else {
+                            model.depth(id as usize - 1, model.ndc((x, y)))
+                        };
+                        if id != 0 && depth[i] > 0.0 {
+                            view_loss += depth_term(&loss, z - depth[i], n as f64);
+                        }
+                        antialiased.extend_from_slice(&a[i * channels..(i + 1) * channels]);
+                        antialiased.push(z);
+                    }
+                }
+            }
+        }
+        view_losses.push(view_loss);
         offset_ids += n;
         offset_distance += n;
     }

@@ -636,6 +636,7 @@ impl<'a> Task<'a> {
                 observed,
                 attributes: None,
                 shading: params.shading,
+                depth: None,
             },
         )?;
         let to_code = optimizer_coordinates(space, params.optimizer);

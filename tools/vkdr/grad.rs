@@ -31,6 +31,7 @@ pub fn mask_scene(
             observed: mask,
             attributes: None,
             shading: None,
+            depth: None,
         },
     )
 }
