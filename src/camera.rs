@@ -132,6 +132,15 @@ impl Pose {
         self.rotation_matrix() * p + self.translation
     }
 
+    /// This transform followed by `next`: x -> next(self(x)).
+    pub fn followed_by(&self, next: &Pose) -> Pose {
+        let r = next.rotation_matrix() * self.rotation_matrix();
+        Pose {
+            translation: next.apply(self.translation),
+            rotation: glam::DQuat::from_mat3(&r).to_scaled_axis(),
+        }
+    }
+
     /// The transform as a column-major 4x4 matrix in f32 (for shaders).
     pub fn matrix_f32(&self) -> [[f32; 4]; 4] {
         let r = self.rotation_matrix();

@@ -16,7 +16,7 @@ use bytemuck::{Pod, Zeroable};
 use glam::{DMat3, DVec3};
 
 use crate::cpd::linalg::{self, Matrix};
-use crate::diff::{DiffRenderer, Scene, SceneDesc, Shading};
+use crate::diff::{DepthLoss, DiffRenderer, ObservedDepth, Scene, SceneDesc, Shading};
 use crate::error::{Error, Result};
 use crate::gpu::{
     spans, spirv, Binding, BindingKind, Buffer, ComputePipeline, Context, Groups, Recorder,
@@ -25,13 +25,14 @@ use crate::gpu::{
 use crate::loss::Loss;
 use crate::raster::View;
 use crate::shape::ShapeSpace;
-use crate::Pose;
+use crate::{Camera, Pose};
 
 const DEFORM: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/deform.comp.spv"));
 const LATENT_GRADIENT: &[u8] =
     include_bytes!(concat!(env!("OUT_DIR"), "/latent_gradient.comp.spv"));
 const OPTIMIZER: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/optimizer.comp.spv"));
 const BFGS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/bfgs.comp.spv"));
+const RIG: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/rig.comp.spv"));
 
 /// The most iterations (or alignment iterations) one registration may ask for.
 pub const MAX_ITERATIONS: usize = 100_000;
@@ -112,6 +113,9 @@ pub struct RegisterParams {
     /// Compare Lambert shading with each job's `shaded` image instead of the mask (the
     /// pose alignment still compares masks); the loss must be mse.
     pub shading: Option<Shading>,
+    /// Compare each job's observed depth too (the pose alignment does not); the loss
+    /// must be mse. With depth the z translation is observed: set `optimize_z`.
+    pub depth: Option<DepthLoss>,
     /// Read the loss back every this many iterations; stop when it improved by less than
     /// `plateau` (relative) over the last chunk.
     pub check_every: usize,
@@ -141,6 +145,7 @@ impl Default for RegisterParams {
             optimizer: Optimizer::Sgd,
             loss: Loss::Mse,
             shading: None,
+            depth: None,
             check_every: 10,
             plateau: 1e-4,
         }
@@ -229,6 +234,7 @@ pub struct Registrar {
     latent_gradient: ComputePipeline,
     optimizer: ComputePipeline,
     bfgs: ComputePipeline,
+    rig: ComputePipeline,
 }
 
 /// What a registration found.
@@ -269,6 +275,7 @@ impl Registrar {
             )?,
             optimizer: ComputePipeline::new(ctx, "optimizer", &spirv(OPTIMIZER)?, &[b; 5], 44)?,
             bfgs: ComputePipeline::new(ctx, "bfgs", &spirv(BFGS)?, &[b; 5], 44)?,
+            rig: ComputePipeline::new(ctx, "rig", &spirv(RIG)?, &[b; 4], 8)?,
         })
     }
 
@@ -327,6 +334,7 @@ impl Registrar {
             iterations: params.align,
             loss: params.align_loss,
             shading: None,
+            depth: None,
             ..*params
         };
         let aligned = self.run(ctx, jobs, &align, true, started, 0, &mut on_chunk)?;
@@ -498,6 +506,7 @@ impl Registrar {
             rec.timestamp(outer, 1);
         }
         scene.record(&self.renderer, rec, timing.map(|t| t.1))?;
+        self.record_rig(rec, task, 0);
         if let Some((outer, _)) = timing {
             rec.timestamp(outer, 2);
         }
@@ -533,10 +542,34 @@ impl Registrar {
             Groups::Count(1, 1, 1),
         );
         rec.memory_barrier();
+        self.record_rig(rec, task, 1);
         if let Some((outer, _)) = timing {
             rec.timestamp(outer, 3);
         }
         Ok(())
+    }
+
+    /// With several views, one stage of `glsl/rig.comp` (and a barrier after it): 0 sums
+    /// the views' pose gradients and losses into the first view's, 1 moves the other views
+    /// with the first.
+    fn record_rig(&self, rec: &mut Recorder, task: &Task, stage: u32) {
+        let Some(rig) = &task.rig else {
+            return;
+        };
+        let scene = &task.scene;
+        let views = scene.views().count();
+        rec.run_compute(
+            &self.rig,
+            &[
+                Binding::buffer(scene.views().views()),
+                Binding::buffer(scene.pose_gradient()),
+                Binding::buffer(scene.loss_stats()),
+                Binding::buffer(rig),
+            ],
+            &[views, stage],
+            Groups::Count(views.div_ceil(64), 1, 1),
+        );
+        rec.memory_barrier();
     }
 }
 
@@ -554,16 +587,30 @@ pub struct PassTimes {
     pub total: f64,
 }
 
+/// A further camera of a multi-view registration: it sees the same object, from a pose
+/// known relative to the first camera (a point x in the first camera's frame is
+/// `from_first.apply(x)` in this one's). Its image has the first view's size.
+#[derive(Clone, Copy, Debug)]
+pub struct OtherView {
+    pub camera: Camera,
+    pub from_first: Pose,
+}
+
 /// One registration to run: a shape space, an observed mask ([row][column], nonzero =
 /// object), optionally the observed shading (grey, [row][column], background 0; compared
-/// when `RegisterParams::shading` is set) and the view it was seen through (its pose is
-/// the initial pose).
+/// when `RegisterParams::shading` is set) and depth (metres, 0 = not measured; compared
+/// when `RegisterParams::depth` is set), and the view it was seen through (its pose is
+/// the initial pose). With `others`, the object is seen by several cameras at once: one
+/// code and one object pose explain every view, and each image holds every view's,
+/// [view][row][column], the first view first.
 #[derive(Clone, Copy)]
 pub struct Job<'a> {
     pub space: &'a ShapeSpace,
     pub observed: &'a [f32],
     pub shaded: Option<&'a [f32]>,
+    pub depth: Option<&'a [f32]>,
     pub view: View,
+    pub others: &'a [OtherView],
 }
 
 impl<'a> Job<'a> {
@@ -573,7 +620,9 @@ impl<'a> Job<'a> {
             space,
             observed,
             shaded: None,
+            depth: None,
             view,
+            others: &[],
         }
     }
 
@@ -583,6 +632,29 @@ impl<'a> Job<'a> {
             shaded: Some(shaded),
             ..self
         }
+    }
+
+    /// The same with the observed depth too.
+    pub fn with_depth(self, depth: &'a [f32]) -> Self {
+        Self {
+            depth: Some(depth),
+            ..self
+        }
+    }
+
+    /// The same seen by further cameras (the images then hold every view's).
+    pub fn with_others(self, others: &'a [OtherView]) -> Self {
+        Self { others, ..self }
+    }
+
+    /// Every view: the first, then the others at their poses relative to it.
+    pub fn views(&self) -> Vec<View> {
+        std::iter::once(self.view)
+            .chain(self.others.iter().map(|o| View {
+                camera: o.camera,
+                pose: self.view.pose.followed_by(&o.from_first),
+            }))
+            .collect()
     }
 }
 
@@ -596,6 +668,8 @@ struct Task<'a> {
     basis: Buffer,
     state: Buffer,
     grad_latent: Buffer,
+    /// With several views: each view's pose relative to the first (`glsl/rig.comp`).
+    rig: Option<Buffer>,
     m: usize,
     k: usize,
     done: usize,
@@ -627,18 +701,38 @@ impl<'a> Task<'a> {
                 ))
             }
         };
+        let depth = match (params.depth, job.depth) {
+            (None, _) => None,
+            (Some(loss), Some(depth)) => Some(ObservedDepth { depth, loss }),
+            (Some(_), None) => {
+                return Err(Error::InvalidInput(
+                    "registration with depth needs the observed depth image".into(),
+                ))
+            }
+        };
+        let views = job.views();
         let scene = Scene::new(
             ctx,
             &SceneDesc {
                 mesh: &space.canonical,
-                views: &[job.view],
+                views: &views,
                 loss: params.loss,
                 observed,
                 attributes: None,
                 shading: params.shading,
-                depth: None,
+                depth,
             },
         )?;
+        let rig = if job.others.is_empty() {
+            None
+        } else {
+            let identity = Pose::at([0.0; 3]);
+            let rig: Vec<[[f32; 4]; 4]> = std::iter::once(&identity)
+                .chain(job.others.iter().map(|o| &o.from_first))
+                .map(|p| p.matrix_f32())
+                .collect();
+            Some(Buffer::from_slice(ctx, "rig", &rig)?)
+        };
         let to_code = optimizer_coordinates(space, params.optimizer);
         let base: Vec<f32> = space
             .canonical
@@ -667,6 +761,7 @@ impl<'a> Task<'a> {
             basis: Buffer::from_slice(ctx, "scaled deformation basis", &basis)?,
             state: Buffer::from_slice(ctx, "optimizer state", &vec![0f32; state_len])?,
             grad_latent: Buffer::from_slice(ctx, "latent gradient", &vec![0f32; k.max(1)])?,
+            rig,
             m: space.canonical.vertex_count(),
             k,
             done: 0,
