@@ -132,6 +132,15 @@ impl Pose {
         self.rotation_matrix() * p + self.translation
     }
 
+    /// The inverse transform.
+    pub fn inverse(&self) -> Pose {
+        let r = self.rotation_matrix().transpose();
+        Pose {
+            translation: -(r * self.translation),
+            rotation: -self.rotation,
+        }
+    }
+
     /// This transform followed by `next`: x -> next(self(x)).
     pub fn followed_by(&self, next: &Pose) -> Pose {
         let r = next.rotation_matrix() * self.rotation_matrix();

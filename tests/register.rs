@@ -162,7 +162,7 @@ fn an_open_cup_seen_into_its_opening_is_lit_inside() {
         light: [0.0, 0.0, -1.0],
         ambient: 0.2,
     };
-    let shaded = eval::render_shading(&ctx, &registrar, &cup, view(pose), shading).unwrap();
+    let shaded = eval::render_shading(&ctx, &registrar, &cup, &[view(pose)], shading).unwrap();
     let mask = eval::render_mask(&ctx, &registrar, &cup, view(pose)).unwrap();
     common::assert_no_validation_errors(&ctx);
     let object: Vec<f32> = shaded
@@ -199,7 +199,7 @@ fn shading_brings_back_a_tilted_pose() {
         .unwrap();
     let shading = Shading::default();
     let observed = observe(&ctx, &space, &mesh.points(), view(pose));
-    let shaded = eval::render_shading(&ctx, &registrar, &mesh, view(pose), shading).unwrap();
+    let shaded = eval::render_shading(&ctx, &registrar, &mesh, &[view(pose)], shading).unwrap();
     // Tilted 6 degrees about the camera's x axis, shifted 8 mm.
     let tilt = glam::DMat3::from_rotation_x(6f64.to_radians()) * pose.rotation_matrix();
     let start = Pose {

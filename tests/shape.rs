@@ -6,6 +6,7 @@ mod common;
 use glam::DVec3;
 use vkdr::cpd::{self, CpdParams, CpdPipelines};
 use vkdr::dataset::{instance, Rng};
+use vkdr::eval;
 use vkdr::shape::ShapeSpace;
 
 fn small_space(
@@ -175,5 +176,53 @@ fn a_large_canonical_reproduces_its_fits() {
             .fold(0.0, f64::max);
         assert!(worst < 1e-6, "instance {i}: {worst} m");
     }
+    common::assert_no_validation_errors(&ctx);
+}
+
+#[test]
+fn the_space_optimum_finds_a_shape_of_the_space_and_never_loses_to_its_start() {
+    let ctx = common::context();
+    let (space, train) = small_space(&ctx, 4, 3);
+    // A shape inside the space: its optimum is that code, at (almost) no error.
+    let codes = &space.training_codes;
+    let inside: Vec<f64> = (0..space.dims())
+        .map(|i| 0.6 * codes[0][i] + 0.3 * codes[1][i])
+        .collect();
+    let mesh = space
+        .canonical
+        .with_points(&space.vertices(&inside).unwrap())
+        .unwrap();
+    let truth = eval::surface_sample(&mesh, 500, 7);
+    let zero = vec![0.0; space.dims()];
+    let start = eval::surface_error(
+        &truth,
+        &space.vertices(&zero).unwrap(),
+        space.canonical.triangles(),
+    );
+    let (code, error) = eval::space_optimum(&space, &truth, &zero, 30).unwrap();
+    assert!(
+        error < 1e-4 * start,
+        "error {error} m from {start} m (code {code:?}, truth {inside:?})"
+    );
+    for (a, b) in code.iter().zip(&inside) {
+        assert!(
+            (a - b).abs() < 1e-3 * (1.0 + b.abs()),
+            "code {code:?}, truth {inside:?}"
+        );
+    }
+    // A training instance (not in the space exactly): never worse than its oracle code.
+    let oracle = &space.training_codes[0];
+    let target = space.canonical.with_points(&train[0].1).unwrap();
+    let truth = eval::surface_sample(&target, 500, 8);
+    let at_oracle = eval::surface_error(
+        &truth,
+        &space.vertices(oracle).unwrap(),
+        space.canonical.triangles(),
+    );
+    let (_, error) = eval::space_optimum(&space, &truth, oracle, 30).unwrap();
+    assert!(
+        error <= at_oracle,
+        "optimum {error} m, oracle {at_oracle} m"
+    );
     common::assert_no_validation_errors(&ctx);
 }

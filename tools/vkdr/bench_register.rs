@@ -156,7 +156,7 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
     let observed = eval::render_mask(ctx, &registrar, &test, View { camera, pose })?;
     let shading = args.shading.then(Shading::default);
     let shaded = shading
-        .map(|s| eval::render_shading(ctx, &registrar, &test, View { camera, pose }, s))
+        .map(|s| eval::render_shading(ctx, &registrar, &test, &[View { camera, pose }], s))
         .transpose()?;
     let jobs: Vec<Job> = (0..args.batch)
         .map(|_| {

@@ -94,7 +94,7 @@ pub fn register(
         &image::DynamicImage::ImageRgb8(overlay(observed, &end, w, h)),
     )?;
     if let (Some(shading), Some(shaded)) = (params.shading, shaded) {
-        let end = eval::render_shading(ctx, &registrar, &mesh, end_view, shading)?;
+        let end = eval::render_shading(ctx, &registrar, &mesh, &[end_view], shading)?;
         write_png(
             &out.join("shading_end.png"),
             &image::DynamicImage::ImageRgb8(shading_pair(shaded, &end, w, h)),
@@ -237,8 +237,9 @@ pub fn eval(
                 },
             )?;
             eprintln!(
-                "\r  {name:<22} oracle {:.2} mm, known pose {:.2} mm ({:.2}x), pose noise {:.2} mm ({:.2}x), {:.0} ms",
+                "\r  {name:<22} oracle {:.2} mm (space optimum {:.2}), known pose {:.2} mm ({:.2}x), pose noise {:.2} mm ({:.2}x), {:.0} ms",
                 1e3 * row.oracle,
+                1e3 * row.space_optimum,
                 1e3 * row.known_pose.mean,
                 row.known_pose.mean / row.oracle,
                 1e3 * row.pose_noise.mean,
@@ -269,23 +270,28 @@ fn categories(rows: &[Row]) -> Vec<&str> {
 
 fn category_table(rows: &[Row]) -> String {
     let mut md = String::from(
-        "\nPer category (means over its test instances; ratio = mean error / mean oracle error):\n\n\
-         | category | oracle | known pose | ratio | pose noise | ratio | worst noise trial | noise, placed (ratio) |\n|---|---|---|---|---|---|---|---|\n",
+        "\nPer category (means over its test instances; ratio = mean error / mean oracle error; \
+         / optimum = mean error / mean space optimum):\n\n\
+         | category | oracle | space optimum | known pose | ratio | / optimum | pose noise | ratio | / optimum | worst noise trial | noise, placed (ratio) |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for category in categories(rows) {
         let of: Vec<&Row> = rows.iter().filter(|r| r.category == category).collect();
         let mean = |f: &dyn Fn(&Row) -> f64| of.iter().map(|r| f(r)).sum::<f64>() / of.len() as f64;
         let oracle = mean(&|r| r.oracle);
+        let optimum = mean(&|r| r.space_optimum);
         let (known, noise) = (mean(&|r| r.known_pose.mean), mean(&|r| r.pose_noise.mean));
         let worst = of.iter().map(|r| r.pose_noise_worst).fold(0.0, f64::max);
         let placed = mean(&|r| r.pose_noise_placed.mean);
         md.push_str(&format!(
-            "| {category} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} ({:.2}) |\n",
+            "| {category} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} ({:.2}) |\n",
             1e3 * oracle,
+            1e3 * optimum,
             1e3 * known,
             known / oracle,
+            known / optimum,
             1e3 * noise,
             noise / oracle,
+            noise / optimum,
             1e3 * worst,
             1e3 * placed,
             placed / oracle
@@ -378,16 +384,18 @@ pub fn write_reports(
     let c = &settings.camera;
     let (known, noisy) = (&settings.known_pose, &settings.pose_noise);
     let mut md = format!(
-        "# Registration error (Table 1)\n\nDevice: {device}. Camera: fx {} fy {} cx {} cy {}, {}x{} px; object at {} m; views from the hemisphere of each category's up axis (info.json) \
+        "# Registration error (Table 1)\n\nObserved: {}.\n\nDevice: {device}. Camera: fx {} fy {} cx {} cy {}, {}x{} px; object at {} m; views from the hemisphere of each category's up axis (info.json) \
          (elevation {:.0}-{:.0} deg) at random azimuth; {} trials per instance (seed {}); shape spaces of up to {} dimensions (fewer where the training instances span fewer). Pose noise: uniform +-{} cm in x and y, +-{:.0} deg about each axis. \
          Error: mean distance (mm) from {} points sampled uniformly on the test surface to the deformed canonical's surface; \
-         oracle: least-squares latent fit to CPD of the canonical onto the true instance; \
-         ratio = error / oracle error; chamfer = symmetric chamfer distance of the vertex sets (mm); \
+         oracle: least-squares latent fit to CPD of the canonical onto the true instance (the paper's); \
+         space optimum: the code with the least error itself for the true instance (a direct 3D fit: the best the shape space can do); \
+         ratio = error / oracle error; / opt. = error / space optimum; chamfer = symmetric chamfer distance of the vertex sets (mm); \
          placed: the pose-noise error after moving each registered shape so that its vertex centroid is the oracle fit's \
          (one view cannot tell a shape shifted in its frame from a shifted pose). \
          Registration: known pose, {} for {} iterations ({} loss); pose noise, the pose aligned alone for {} iterations ({} loss), \
          then pose and shape by {} for {} ({} loss).{}{}\n\n\
-         | category | instance | oracle | known pose | ratio | pose noise | ratio | worst noise trial | noise, placed | chamfer oracle / known / noise | iterations known / noise | ms known / noise |{}\n|---|---|---|---|---|---|---|---|---|---|---|---|{}\n",
+         | category | instance | oracle | space optimum | known pose | ratio | / opt. | pose noise | ratio | / opt. | worst noise trial | noise, placed | chamfer oracle / known / noise | iterations known / noise | ms known / noise |{}\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|{}\n",
+        settings.observation(),
         c.fx, c.fy, c.cx, c.cy, c.width, c.height, settings.distance,
         settings.elevation.0.to_degrees(), settings.elevation.1.to_degrees(), settings.trials, settings.seed, settings.dims,
         100.0 * settings.translation_noise, settings.rotation_noise.to_degrees(), eval::SAMPLE_POINTS,
@@ -402,7 +410,7 @@ pub fn write_reports(
         if settings.from_truth { " from true pose | ratio |" } else { "" },
         if settings.from_truth { "---|---|" } else { "" },
     );
-    let mut csv = String::from("category,instance,oracle,known_pose_mean,known_pose_std,pose_noise_mean,pose_noise_std,iterations,ms,oracle_chamfer,known_pose_chamfer,pose_noise_chamfer,noise_iterations,noise_ms,from_truth_mean,from_truth_std,pose_noise_placed_mean,pose_noise_placed_std\n");
+    let mut csv = String::from("category,instance,oracle,known_pose_mean,known_pose_std,pose_noise_mean,pose_noise_std,iterations,ms,oracle_chamfer,known_pose_chamfer,pose_noise_chamfer,noise_iterations,noise_ms,from_truth_mean,from_truth_std,pose_noise_placed_mean,pose_noise_placed_std,space_optimum\n");
     let shading_json = settings.shading.map_or("null".to_string(), |s| {
         format!(
             "{{\"light\": [{:e}, {:e}, {:e}], \"ambient\": {:e}}}",
@@ -412,15 +420,16 @@ pub fn write_reports(
     let mut json = Vec::new();
     for r in rows {
         md.push_str(&format!(
-            "| {} | {} | {:.2} | {:.2} +- {:.2} | {:.2} | {:.2} +- {:.2} | {:.2} | {:.2} | {:.2} ({:.2}) | {:.2} / {:.2} / {:.2} | {:.1} / {:.1} | {:.0} / {:.0} |{}\n",
-            r.category, r.instance, 1e3 * r.oracle, 1e3 * r.known_pose.mean, 1e3 * r.known_pose.std, r.known_pose.mean / r.oracle,
-            1e3 * r.pose_noise.mean, 1e3 * r.pose_noise.std, r.pose_noise.mean / r.oracle, 1e3 * r.pose_noise_worst,
+            "| {} | {} | {:.2} | {:.2} | {:.2} +- {:.2} | {:.2} | {:.2} | {:.2} +- {:.2} | {:.2} | {:.2} | {:.2} | {:.2} ({:.2}) | {:.2} / {:.2} / {:.2} | {:.1} / {:.1} | {:.0} / {:.0} |{}\n",
+            r.category, r.instance, 1e3 * r.oracle, 1e3 * r.space_optimum, 1e3 * r.known_pose.mean, 1e3 * r.known_pose.std, r.known_pose.mean / r.oracle,
+            r.known_pose.mean / r.space_optimum,
+            1e3 * r.pose_noise.mean, 1e3 * r.pose_noise.std, r.pose_noise.mean / r.oracle, r.pose_noise.mean / r.space_optimum, 1e3 * r.pose_noise_worst,
             1e3 * r.pose_noise_placed.mean, r.pose_noise_placed.mean / r.oracle,
             1e3 * r.oracle_chamfer, 1e3 * r.known_pose_chamfer.mean, 1e3 * r.pose_noise_chamfer.mean, r.iterations, r.noise_iterations, r.ms, r.noise_ms,
             r.from_truth.map_or(String::new(), |f| format!(" {:.2} +- {:.2} | {:.2} |", 1e3 * f.mean, 1e3 * f.std, f.mean / r.oracle))
         ));
         csv.push_str(&format!(
-            "{},{},{:e},{:e},{:e},{:e},{:e},{},{:.3},{:e},{:e},{:e},{},{:.3},{},{},{:e},{:e}\n",
+            "{},{},{:e},{:e},{:e},{:e},{:e},{},{:.3},{:e},{:e},{:e},{},{:.3},{},{},{:e},{:e},{:e}\n",
             r.category,
             r.instance,
             r.oracle,
@@ -441,10 +450,11 @@ pub fn write_reports(
                 .map_or(String::new(), |f| format!("{:e}", f.std)),
             r.pose_noise_placed.mean,
             r.pose_noise_placed.std,
+            r.space_optimum,
         ));
         json.push(format!(
-            "  {{\"category\": {:?}, \"instance\": {:?}, \"oracle\": {:e}, \"known_pose\": {{\"mean\": {:e}, \"std\": {:e}}}, \"pose_noise\": {{\"mean\": {:e}, \"std\": {:e}}}, \"iterations\": {}, \"ms\": {:.3}, \"chamfer\": {{\"oracle\": {:e}, \"known_pose\": {:e}, \"pose_noise\": {:e}}}, \"noise_iterations\": {}, \"noise_ms\": {:.3}, \"from_truth\": {}, \"pose_noise_placed\": {{\"mean\": {:e}, \"std\": {:e}}}, \"shading\": {}}}",
-            r.category, r.instance, r.oracle, r.known_pose.mean, r.known_pose.std, r.pose_noise.mean, r.pose_noise.std, r.iterations, r.ms,
+            "  {{\"category\": {:?}, \"instance\": {:?}, \"observation\": {:?}, \"oracle\": {:e}, \"space_optimum\": {:e}, \"known_pose\": {{\"mean\": {:e}, \"std\": {:e}}}, \"pose_noise\": {{\"mean\": {:e}, \"std\": {:e}}}, \"iterations\": {}, \"ms\": {:.3}, \"chamfer\": {{\"oracle\": {:e}, \"known_pose\": {:e}, \"pose_noise\": {:e}}}, \"noise_iterations\": {}, \"noise_ms\": {:.3}, \"from_truth\": {}, \"pose_noise_placed\": {{\"mean\": {:e}, \"std\": {:e}}}, \"shading\": {}}}",
+            r.category, r.instance, settings.observation(), r.oracle, r.space_optimum, r.known_pose.mean, r.known_pose.std, r.pose_noise.mean, r.pose_noise.std, r.iterations, r.ms,
             r.oracle_chamfer, r.known_pose_chamfer.mean, r.pose_noise_chamfer.mean, r.noise_iterations, r.noise_ms,
             r.from_truth.map_or("null".to_string(), |f| format!("{{\"mean\": {:e}, \"std\": {:e}}}", f.mean, f.std)),
             r.pose_noise_placed.mean, r.pose_noise_placed.std, shading_json

@@ -292,11 +292,44 @@ struct EvalArgs {
     from_truth: bool,
     #[command(flatten)]
     shading: ShadingArgs,
+    /// Observe the test instance's rendered depth too (then z is optimised with pose noise).
+    #[arg(long)]
+    depth: bool,
+    /// Standard deviation of Gaussian noise added to every measured depth, metres.
+    #[arg(long, requires = "depth", default_value_t = 0.0)]
+    depth_noise: f64,
+    #[command(flatten)]
+    depth_loss: DepthLossArgs,
+    /// Cameras per trial, 1 to 6: the others at seeded azimuths at least 60 degrees from
+    /// every other, their relative poses known, one code and object pose for all.
+    #[arg(long, default_value_t = 1)]
+    views: usize,
     /// Run even where `check-dataset` finds the set unusable (millimetres, no meshes, ...).
     #[arg(long)]
     skip_checks: bool,
     #[arg(long)]
     out: PathBuf,
+}
+
+#[derive(clap::Args)]
+struct DepthLossArgs {
+    /// Depth residuals up to this (metres) cost quadratically, beyond linearly (Huber).
+    #[arg(long, default_value_t = vkdr::diff::DepthLoss::default().scale)]
+    depth_scale: f64,
+    /// Weight of the depth term against the mask (or shading) term.
+    #[arg(long, default_value_t = vkdr::diff::DepthLoss::default().weight)]
+    depth_weight: f64,
+}
+
+impl DepthLossArgs {
+    fn loss(&self) -> Result<vkdr::diff::DepthLoss> {
+        let loss = vkdr::diff::DepthLoss {
+            scale: self.depth_scale,
+            weight: self.depth_weight,
+        };
+        loss.validate()?;
+        Ok(loss)
+    }
 }
 
 #[derive(clap::Args)]
@@ -660,7 +693,7 @@ fn register(args: &RegisterArgs) -> Result<()> {
             let registrar = vkdr::register::Registrar::new(&ctx)?;
             let mesh = Mesh::load_obj(mesh)?;
             let shaded = shading
-                .map(|s| vkdr::eval::render_shading(&ctx, &registrar, &mesh, truth, s))
+                .map(|s| vkdr::eval::render_shading(&ctx, &registrar, &mesh, &[truth], s))
                 .transpose()?;
             let mask = vkdr::eval::render_mask(&ctx, &registrar, &mesh, truth)?;
             (mask, shaded)
@@ -731,6 +764,23 @@ fn eval_command(args: &EvalArgs) -> Result<()> {
     settings.pose_noise.align = args.align;
     settings.from_truth = args.from_truth;
     settings.shading = args.shading.shading()?;
+    if args.depth {
+        settings.depth = Some(args.depth_loss.loss()?);
+    }
+    if !(args.depth_noise.is_finite() && args.depth_noise >= 0.0) {
+        bail!(
+            "--depth-noise must be a standard deviation in metres, >= 0, not {}",
+            args.depth_noise
+        );
+    }
+    settings.depth_noise = args.depth_noise;
+    if !(1..=6).contains(&args.views) {
+        bail!(
+            "--views must be 1 to 6 (views at least 60 degrees apart), not {}",
+            args.views
+        );
+    }
+    settings.views = args.views;
     let loss: Option<vkdr::loss::Loss> = args.loss.as_deref().map(str::parse).transpose()?;
     let optimizer: Option<vkdr::register::Optimizer> =
         args.optimizer.as_deref().map(str::parse).transpose()?;
