@@ -335,6 +335,9 @@ impl Registrar {
             loss: params.align_loss,
             shading: None,
             depth: None,
+            // One silhouette of the mean shape tells its distance badly (a larger instance
+            // looks nearer): the depth of the joint stage, when given, tells it well.
+            optimize_z: params.optimize_z && params.depth.is_none(),
             ..*params
         };
         let aligned = self.run(ctx, jobs, &align, true, started, 0, &mut on_chunk)?;
