@@ -7,7 +7,7 @@
 
 mod common;
 
-use vkdr::loss::{load_mask, load_shading, reference, DistanceField};
+use vkdr::loss::{load_depth, load_mask, load_shading, reference, DistanceField};
 
 fn shapes(width: u32, height: u32) -> Vec<(&'static str, Vec<f32>)> {
     let at = |f: &dyn Fn(f64, f64) -> bool| -> Vec<f32> {
@@ -121,5 +121,57 @@ fn a_shading_image_is_grey_on_the_mask_and_background_off_it() {
     for (got, want) in shading.iter().zip(want) {
         assert!((got - want).abs() < 1e-6, "{shading:?}");
     }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn depth_reads_as_metres_from_npy_and_millimetre_pngs_and_refuses_bad_values() {
+    let dir = std::env::temp_dir().join(format!("vkdr-depth-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (w, h) = (5u32, 3u32);
+    let metres: Vec<f32> = (0..w * h)
+        .map(|i| {
+            if i % 4 == 0 {
+                0.0
+            } else {
+                0.5 + 0.001 * i as f32
+            }
+        })
+        .collect();
+    let npy = dir.join("depth.npy");
+    let array = ndarray::Array2::from_shape_vec((h as usize, w as usize), metres.clone()).unwrap();
+    ndarray_npy::write_npy(&npy, &array).unwrap();
+    assert_eq!(load_depth(&npy, w, h).unwrap(), metres);
+    // 16-bit PNG in millimetres.
+    let png = dir.join("depth.png");
+    let mm = image::ImageBuffer::<image::Luma<u16>, _>::from_fn(w, h, |x, y| {
+        image::Luma([(metres[(y * w + x) as usize] * 1e3).round() as u16])
+    });
+    mm.save(&png).unwrap();
+    for (a, b) in load_depth(&png, w, h).unwrap().iter().zip(&metres) {
+        assert!((a - b).abs() <= 0.5e-3, "{a} m read for {b} m");
+    }
+    // Wrong size, 8-bit PNG, a negative depth, NaN, a header claiming a huge array.
+    let err = load_depth(&npy, h, w).unwrap_err().to_string();
+    assert!(err.contains("--size"), "{err}");
+    let grey8 = dir.join("grey8.png");
+    image::GrayImage::new(w, h).save(&grey8).unwrap();
+    let err = load_depth(&grey8, w, h).unwrap_err().to_string();
+    assert!(err.contains("16-bit"), "{err}");
+    for bad in [-0.1f32, f32::NAN] {
+        let mut values = metres.clone();
+        values[7] = bad;
+        let array = ndarray::Array2::from_shape_vec((h as usize, w as usize), values).unwrap();
+        ndarray_npy::write_npy(&npy, &array).unwrap();
+        let err = load_depth(&npy, w, h).unwrap_err().to_string();
+        assert!(err.contains("row 1 column 2"), "{err}");
+    }
+    let mut huge = b"\x93NUMPY\x01\x00".to_vec();
+    let header = b"{'descr': '<f4', 'fortran_order': False, 'shape': (1000000000000, 3), }";
+    huge.extend((header.len() as u16).to_le_bytes());
+    huge.extend(header);
+    std::fs::write(&npy, &huge).unwrap();
+    let err = load_depth(&npy, w, h).unwrap_err().to_string();
+    assert!(err.contains("1000000000000"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }

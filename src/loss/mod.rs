@@ -99,6 +99,96 @@ fn open_image(path: &Path, what: &str, width: u32, height: u32) -> Result<image:
     Ok(image)
 }
 
+/// Reads an observed depth image of `width` x `height` as metres, row-major: a `.npy` of
+/// float32 or float64 metres (H x W), or a 16-bit grey PNG of millimetres. 0 is no
+/// measurement; a negative or non-finite value is an error (never silently a hole).
+pub fn load_depth(path: &Path, width: u32, height: u32) -> Result<Vec<f32>> {
+    let is_npy = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("npy"));
+    let depth: Vec<f32> = if is_npy {
+        let bytes = std::fs::read(path).map_err(|e| Error::format(path, e.to_string()))?;
+        let shape = npy_shape(&bytes).map_err(|m| Error::format(path, m))?;
+        if shape != [height as usize, width as usize] {
+            return Err(Error::format(
+                path,
+                format!("depth is {shape:?} (rows, columns) but --size is {width}x{height}"),
+            ));
+        }
+        use ndarray_npy::ReadNpyExt;
+        match ndarray::Array2::<f32>::read_npy(&bytes[..]) {
+            Ok(a) => a.iter().copied().collect(),
+            Err(_) => ndarray::Array2::<f64>::read_npy(&bytes[..])
+                .map_err(|e| Error::format(path, format!("not float32 or float64: {e}")))?
+                .iter()
+                .map(|&z| z as f32)
+                .collect(),
+        }
+    } else {
+        match open_image(path, "depth image", width, height)? {
+            image::DynamicImage::ImageLuma16(grey) => {
+                grey.pixels().map(|p| p.0[0] as f32 * 1e-3).collect()
+            }
+            other => {
+                return Err(Error::format(
+                    path,
+                    format!(
+                        "a depth PNG must be 16-bit grey (millimetres), not {:?}",
+                        other.color()
+                    ),
+                ))
+            }
+        }
+    };
+    if let Some(i) = depth.iter().position(|z| !(z.is_finite() && *z >= 0.0)) {
+        return Err(Error::format(
+            path,
+            format!(
+                "depth at row {} column {} is {} (metres >= 0 expected; 0 = no measurement)",
+                i / width as usize,
+                i % width as usize,
+                depth[i]
+            ),
+        ));
+    }
+    Ok(depth)
+}
+
+/// The shape in a `.npy` header, read before any array is allocated (a header may claim
+/// any size).
+fn npy_shape(bytes: &[u8]) -> std::result::Result<Vec<usize>, String> {
+    if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
+        return Err("not a .npy file".into());
+    }
+    let (length, start) = match bytes[6] {
+        1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10usize),
+        2 | 3 if bytes.len() >= 12 => (
+            u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize,
+            12,
+        ),
+        v => return Err(format!(".npy version {v} is not supported")),
+    };
+    let header = bytes
+        .get(start..start.saturating_add(length))
+        .ok_or("the .npy header is cut short")?;
+    let header = String::from_utf8_lossy(header);
+    let shape = header
+        .split_once("'shape':")
+        .and_then(|(_, rest)| rest.split_once('('))
+        .and_then(|(_, rest)| rest.split_once(')'))
+        .map(|(inside, _)| inside)
+        .ok_or("the .npy header names no shape")?;
+    shape
+        .split(',')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .map(|s| {
+            s.parse::<usize>()
+                .map_err(|_| format!("bad .npy shape ({shape})"))
+        })
+        .collect()
+}
+
 /// Loads an observed shading image (grey, or colour taken as its luminance) of the given
 /// size as values in [0, 1], [row][column], set to 0 (the background's shade) wherever
 /// `mask` is 0.

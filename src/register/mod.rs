@@ -652,13 +652,18 @@ impl<'a> Job<'a> {
 
     /// Every view: the first, then the others at their poses relative to it.
     pub fn views(&self) -> Vec<View> {
-        std::iter::once(self.view)
-            .chain(self.others.iter().map(|o| View {
-                camera: o.camera,
-                pose: self.view.pose.followed_by(&o.from_first),
-            }))
-            .collect()
+        all_views(self.view, self.others)
     }
+}
+
+/// The views of a rig: `first`, then each of `others` at its pose relative to it.
+pub fn all_views(first: View, others: &[OtherView]) -> Vec<View> {
+    std::iter::once(first)
+        .chain(others.iter().map(|o| View {
+            camera: o.camera,
+            pose: first.pose.followed_by(&o.from_first),
+        }))
+        .collect()
 }
 
 /// A registration's device buffers and progress.

@@ -42,37 +42,40 @@ fn shading_pair(observed: &[f32], rendered: &[f32], width: u32, height: u32) -> 
     })
 }
 
-/// Runs one registration (comparing `shaded` too when `params.shading` is set) and writes
-/// its outputs.
+/// Runs one registration (comparing shading and depth too where `params` asks) and writes
+/// its outputs: the pictures of the first view as `overlay_start.png` / `overlay_end.png`
+/// (`shading_end.png`), those of any further view `v` with a `_view{v}` suffix.
 pub fn register(
     ctx: &Context,
-    space: &ShapeSpace,
-    observed: &[f32],
-    shaded: Option<&[f32]>,
-    view: View,
+    job: Job,
     params: &RegisterParams,
     out: &Path,
 ) -> Result<Registration> {
     let registrar = Registrar::new(ctx)?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let (w, h) = (view.camera.width, view.camera.height);
-    let start = eval::render_mask(
-        ctx,
-        &registrar,
-        &space
-            .canonical
-            .with_points(&space.vertices(&vec![0.0; space.dims()])?)?,
-        view,
-    )?;
-    write_png(
-        &out.join("overlay_start.png"),
-        &image::DynamicImage::ImageRgb8(overlay(observed, &start, w, h)),
-    )?;
-    let total = params.total_iterations();
-    let job = Job {
-        shaded,
-        ..Job::new(space, observed, view)
+    let space = job.space;
+    let views = job.views();
+    let (w, h) = (job.view.camera.width, job.view.camera.height);
+    let pixels = (w * h) as usize;
+    let name = |stem: &str, v: usize| {
+        out.join(if v == 0 {
+            format!("{stem}.png")
+        } else {
+            format!("{stem}_view{v}.png")
+        })
     };
+    let mean = space
+        .canonical
+        .with_points(&space.vertices(&vec![0.0; space.dims()])?)?;
+    for (v, &view) in views.iter().enumerate() {
+        let start = eval::render_mask(ctx, &registrar, &mean, view)?;
+        let observed = &job.observed[v * pixels..(v + 1) * pixels];
+        write_png(
+            &name("overlay_start", v),
+            &image::DynamicImage::ImageRgb8(overlay(observed, &start, w, h)),
+        )?;
+    }
+    let total = params.total_iterations();
     let result = registrar.register(ctx, job, params, |done, loss| {
         let filled = (done * 30 / total.max(1)).min(30);
         eprint!(
@@ -84,21 +87,32 @@ pub fn register(
     eprintln!();
     let mesh = space.canonical.with_points(&result.vertices)?;
     mesh.save_obj(out.join("deformed.obj"))?;
-    let end_view = View {
-        camera: view.camera,
-        pose: result.pose,
+    let ended = Job {
+        view: View {
+            camera: job.view.camera,
+            pose: result.pose,
+        },
+        ..job
     };
-    let end = eval::render_mask(ctx, &registrar, &mesh, end_view)?;
-    write_png(
-        &out.join("overlay_end.png"),
-        &image::DynamicImage::ImageRgb8(overlay(observed, &end, w, h)),
-    )?;
-    if let (Some(shading), Some(shaded)) = (params.shading, shaded) {
-        let end = eval::render_shading(ctx, &registrar, &mesh, &[end_view], shading)?;
+    for (v, &view) in ended.views().iter().enumerate() {
+        let end = eval::render_mask(ctx, &registrar, &mesh, view)?;
+        let observed = &job.observed[v * pixels..(v + 1) * pixels];
         write_png(
-            &out.join("shading_end.png"),
-            &image::DynamicImage::ImageRgb8(shading_pair(shaded, &end, w, h)),
+            &name("overlay_end", v),
+            &image::DynamicImage::ImageRgb8(overlay(observed, &end, w, h)),
         )?;
+        if let (Some(shading), Some(shaded)) = (params.shading, job.shaded) {
+            let end = eval::render_shading(ctx, &registrar, &mesh, &[view], shading)?;
+            write_png(
+                &name("shading_end", v),
+                &image::DynamicImage::ImageRgb8(shading_pair(
+                    &shaded[v * pixels..(v + 1) * pixels],
+                    &end,
+                    w,
+                    h,
+                )),
+            )?;
+        }
     }
     write_npy(
         &out.join("code.npy"),

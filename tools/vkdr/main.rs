@@ -7,6 +7,7 @@ mod cpd_cmd;
 mod eval_cmd;
 mod grad;
 mod pictures;
+mod register_cmd;
 mod shape_cmd;
 
 use std::path::{Path, PathBuf};
@@ -114,7 +115,7 @@ enum Command {
         out: PathBuf,
     },
     /// Register a shape space to an observed mask (render-and-compare on the device).
-    Register(RegisterArgs),
+    Register(register_cmd::Args),
     /// The paper's Table 1 on a dataset: oracle, known pose and pose noise per test instance.
     Eval(EvalArgs),
     /// The quick start: generate a dataset, build a shape space, register a held-out
@@ -200,47 +201,6 @@ struct RenderArgs {
     #[arg(long)]
     raw: bool,
     /// Output directory.
-    #[arg(long)]
-    out: PathBuf,
-}
-
-#[derive(clap::Args)]
-struct RegisterArgs {
-    /// Shape space (.npz from `vkdr shape-space`).
-    #[arg(long)]
-    space: PathBuf,
-    /// Observed mask PNG (nonzero = object), of exactly --size.
-    #[arg(long, required_unless_present = "observed_mesh")]
-    observed: Option<PathBuf>,
-    /// A test mesh to render as the observation (same camera, at the true pose --true-pose
-    /// or, without it, at --pose).
-    #[arg(long)]
-    observed_mesh: Option<PathBuf>,
-    #[arg(long, allow_hyphen_values = true)]
-    true_pose: Option<String>,
-    /// With --shading and --observed: the observed shading, a grey PNG of exactly --size
-    /// (colour is taken as its luminance; pixels off the mask count as background).
-    #[arg(long, requires = "shading")]
-    observed_shading: Option<PathBuf>,
-    #[command(flatten)]
-    shading: ShadingArgs,
-    /// The camera and the initial pose.
-    #[command(flatten)]
-    view: ViewArgs,
-    /// Optimise the pose too (the schedule of `vkdr eval`: the pose aligned alone for 15
-    /// iterations with the distance loss, then pose and shape; z stays fixed).
-    #[arg(long)]
-    optimize_pose: bool,
-    /// Iterations (after the alignment; default: that of `vkdr eval`'s condition, 30 with
-    /// the pose fixed, 60 with --optimize-pose).
-    #[arg(long)]
-    iterations: Option<usize>,
-    /// mse | iou | distance
-    #[arg(long, default_value = "mse")]
-    loss: String,
-    /// sgd | adam | bfgs (default: that of `vkdr eval`'s condition)
-    #[arg(long)]
-    optimizer: Option<String>,
     #[arg(long)]
     out: PathBuf,
 }
@@ -409,7 +369,7 @@ fn main() {
             train,
             test,
         } => gen_dataset(&out, seed, train, test),
-        Command::Register(args) => register(&args),
+        Command::Register(args) => register_cmd::run(&args),
         Command::Eval(args) => eval_command(&args),
         Command::ShapeSpace {
             category_dir,
@@ -667,84 +627,6 @@ fn write_views(
     Ok(written)
 }
 
-fn register(args: &RegisterArgs) -> Result<()> {
-    let space = vkdr::shape::ShapeSpace::load(&args.space)?;
-    let view = args.view.view()?;
-    let ctx = Context::new()?;
-    let (w, h) = (view.camera.width, view.camera.height);
-    let shading = args.shading.shading()?;
-    let (observed, shaded) = match (&args.observed, &args.observed_mesh) {
-        (Some(mask), _) => {
-            let mask = vkdr::loss::load_mask(mask, w, h)?;
-            let shaded = match (shading, &args.observed_shading) {
-                (None, _) => None,
-                (Some(_), Some(path)) => Some(vkdr::loss::load_shading(path, &mask, w, h)?),
-                (Some(_), None) => anyhow::bail!(
-                    "--shading with --observed needs the observed image too (--observed-shading)"
-                ),
-            };
-            (mask, shaded)
-        }
-        (None, Some(mesh)) => {
-            let truth = match &args.true_pose {
-                Some(p) => parse_view(&args.view.intrinsics, &args.view.size, p, args.view.near)?,
-                None => view,
-            };
-            let registrar = vkdr::register::Registrar::new(&ctx)?;
-            let mesh = Mesh::load_obj(mesh)?;
-            let shaded = shading
-                .map(|s| vkdr::eval::render_shading(&ctx, &registrar, &mesh, &[truth], s))
-                .transpose()?;
-            let mask = vkdr::eval::render_mask(&ctx, &registrar, &mesh, truth)?;
-            (mask, shaded)
-        }
-        (None, None) => anyhow::bail!("give --observed MASK.png or --observed-mesh TEST.obj"),
-    };
-    // With the pose: the schedule of `vkdr eval` (pose alone first, then both).
-    let settings = vkdr::eval::EvalSettings::default();
-    let base = if args.optimize_pose {
-        settings.pose_noise
-    } else {
-        settings.known_pose
-    };
-    let optimizer = args.optimizer.as_deref().map(str::parse).transpose()?;
-    let params = vkdr::register::RegisterParams {
-        iterations: args.iterations.unwrap_or(base.iterations),
-        loss: args.loss.parse()?,
-        optimizer: optimizer.unwrap_or(base.optimizer),
-        shading,
-        ..base
-    };
-    let result = eval_cmd::register(
-        &ctx,
-        &space,
-        &observed,
-        shaded.as_deref(),
-        view,
-        &params,
-        &args.out,
-    )?;
-    println!(
-        "{} iterations in {:.1} ms ({:.2} ms per iteration); loss {:.5} -> {:.5}; code {:?}",
-        result.iterations,
-        result.milliseconds,
-        result.milliseconds / result.iterations as f64,
-        result.losses.first().copied().unwrap_or(f64::NAN),
-        result.losses.last().copied().unwrap_or(f64::NAN),
-        result
-            .code
-            .iter()
-            .map(|c| (c * 1e4).round() / 1e4)
-            .collect::<Vec<_>>()
-    );
-    println!(
-        "wrote {0}/deformed.obj, pose.json, code.npy, log.json, overlay_start.png, overlay_end.png{1}",
-        args.out.display(),
-        if shading.is_some() { ", shading_end.png" } else { "" }
-    );
-    Ok(())
-}
-
 /// `vkdr eval`: the default settings with the flags' changes.
 fn eval_command(args: &EvalArgs) -> Result<()> {
     if args.dims == 0 {
@@ -924,18 +806,15 @@ fn demo(out: &Path) -> Result<()> {
         rotation: truth.rotation + glam::DVec3::new(0.1, -0.15, 0.05),
     };
     let register_out = out.join("register");
-    let result = eval_cmd::register(
-        &ctx,
+    let job = vkdr::register::Job::new(
         &space,
         &mask,
-        None,
         View {
             camera: settings.camera,
             pose: start,
         },
-        &settings.pose_noise,
-        &register_out,
-    )?;
+    );
+    let result = eval_cmd::register(&ctx, job, &settings.pose_noise, &register_out)?;
     println!(
         "4. registered with pose noise in {:.0} ms: error {:.2} mm; pictures {2}/overlay_start.png, {2}/overlay_end.png (observed blue, rendered red)",
         result.milliseconds,

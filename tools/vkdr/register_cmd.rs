@@ -1,0 +1,332 @@
+//! `vkdr register`: one registration to observed images (a mask, optionally depth and
+//! shading, in one or several views) or to a test mesh rendered as the observation.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context as _, Result};
+
+use vkdr::eval::{self, EvalSettings};
+use vkdr::gpu::Context;
+use vkdr::loss;
+use vkdr::raster::{Outputs, View};
+use vkdr::register::{self, Job, OtherView, RegisterParams, Registrar};
+use vkdr::shape::ShapeSpace;
+use vkdr::{Camera, Mesh, Pose};
+
+use crate::{eval_cmd, parse_view, DepthLossArgs, ShadingArgs, ViewArgs};
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Shape space (.npz from `vkdr shape-space`).
+    #[arg(long)]
+    space: PathBuf,
+    /// Observed mask PNG (nonzero = object), of exactly --size.
+    #[arg(long, required_unless_present = "observed_mesh")]
+    observed: Option<PathBuf>,
+    /// A test mesh to render as the observation (same camera, at the true pose --true-pose
+    /// or, without it, at --pose).
+    #[arg(long, conflicts_with = "observed")]
+    observed_mesh: Option<PathBuf>,
+    #[arg(long, allow_hyphen_values = true, requires = "observed_mesh")]
+    true_pose: Option<String>,
+    /// With --shading and --observed: the observed shading, a grey PNG of exactly --size
+    /// (colour is taken as its luminance; pixels off the mask count as background).
+    #[arg(long, requires = "shading")]
+    observed_shading: Option<PathBuf>,
+    #[command(flatten)]
+    shading: ShadingArgs,
+    /// With --observed: the observed depth, a .npy of float32 metres (H x W) or a 16-bit grey
+    /// PNG of millimetres; 0 = no measurement. Compared inside the silhouette.
+    #[arg(long, requires = "observed")]
+    observed_depth: Option<PathBuf>,
+    /// With --observed-mesh: observe its rendered depth too.
+    #[arg(long, requires = "observed_mesh")]
+    depth: bool,
+    #[command(flatten)]
+    depth_loss: DepthLossArgs,
+    /// Further views of the object: a JSON file (see the README) with, for each camera after
+    /// the first, its intrinsics, its pose relative to the first camera and its images.
+    #[arg(long)]
+    views: Option<PathBuf>,
+    /// The camera and the initial pose.
+    #[command(flatten)]
+    view: ViewArgs,
+    /// Optimise the pose too (the schedule of `vkdr eval`: the pose aligned alone for 15
+    /// iterations with the distance loss, then pose and shape; z too where depth or a
+    /// further view observes it).
+    #[arg(long)]
+    optimize_pose: bool,
+    /// Iterations (after the alignment; default: that of `vkdr eval`'s condition, 30 with
+    /// the pose fixed, 60 with --optimize-pose).
+    #[arg(long)]
+    iterations: Option<usize>,
+    /// mse | iou | distance
+    #[arg(long, default_value = "mse")]
+    loss: String,
+    /// sgd | adam | bfgs (default: that of `vkdr eval`'s condition)
+    #[arg(long)]
+    optimizer: Option<String>,
+    #[arg(long)]
+    out: PathBuf,
+}
+
+/// A camera after the first, as the views file gives it.
+struct FurtherView {
+    other: OtherView,
+    mask: Option<PathBuf>,
+    depth: Option<PathBuf>,
+    shading: Option<PathBuf>,
+}
+
+/// Reads the views file: `{"views": [{"intrinsics": [fx, fy, cx, cy], "size": [w, h],
+/// "from_first": {"translation": [x, y, z], "rotation": [rx, ry, rz]}, "mask": PATH,
+/// "depth": PATH, "shading": PATH}, ...]}`, one entry per camera after the first.
+/// `from_first` maps the first camera's frame to this one's (metres, axis-angle radians);
+/// paths are relative to the file's folder. Every view has the first's size.
+fn read_views(path: &Path, first: &Camera) -> Result<Vec<FurtherView>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let json: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))?;
+    let folder = path.parent().unwrap_or(Path::new("."));
+    let entries = json
+        .get("views")
+        .and_then(|v| v.as_array())
+        .with_context(|| format!("{}: no \"views\" list", path.display()))?;
+    if entries.is_empty() || entries.len() > 7 {
+        bail!(
+            "{}: {} further views; 1 to 7 are supported",
+            path.display(),
+            entries.len()
+        );
+    }
+    let numbers = |v: &serde_json::Value, key: &str, n: usize, at: usize| -> Result<Vec<f64>> {
+        let list = v.get(key).and_then(|x| x.as_array());
+        let values: Option<Vec<f64>> = list.and_then(|l| l.iter().map(|x| x.as_f64()).collect());
+        match values {
+            Some(values) if values.len() == n && values.iter().all(|x| x.is_finite()) => Ok(values),
+            _ => bail!(
+                "{}: view {} needs \"{key}\" as {n} finite numbers",
+                path.display(),
+                at + 1
+            ),
+        }
+    };
+    let file = |v: &serde_json::Value, key: &str, at: usize| -> Result<Option<PathBuf>> {
+        match v.get(key) {
+            None | Some(serde_json::Value::Null) => Ok(None),
+            Some(serde_json::Value::String(s)) => Ok(Some(folder.join(s))),
+            Some(_) => bail!(
+                "{}: view {}'s \"{key}\" must be a path",
+                path.display(),
+                at + 1
+            ),
+        }
+    };
+    entries
+        .iter()
+        .enumerate()
+        .map(|(at, v)| {
+            let [fx, fy, cx, cy] = numbers(v, "intrinsics", 4, at)?[..] else {
+                unreachable!()
+            };
+            let size = numbers(v, "size", 2, at)?;
+            if size != [first.width as f64, first.height as f64] {
+                bail!(
+                    "{}: view {} is {}x{}, but every view must have the first's size ({}x{})",
+                    path.display(),
+                    at + 1,
+                    size[0],
+                    size[1],
+                    first.width,
+                    first.height
+                );
+            }
+            let mut camera = Camera::new(fx, fy, cx, cy, first.width, first.height)?;
+            camera.near = first.near;
+            let camera = camera
+                .validated()
+                .with_context(|| format!("{}: view {}", path.display(), at + 1))?;
+            let from_first = v.get("from_first").with_context(|| {
+                format!("{}: view {} needs \"from_first\"", path.display(), at + 1)
+            })?;
+            let t = numbers(from_first, "translation", 3, at)?;
+            let r = numbers(from_first, "rotation", 3, at)?;
+            Ok(FurtherView {
+                other: OtherView {
+                    camera,
+                    from_first: Pose::new([t[0], t[1], t[2]], [r[0], r[1], r[2]])?,
+                },
+                mask: file(v, "mask", at)?,
+                depth: file(v, "depth", at)?,
+                shading: file(v, "shading", at)?,
+            })
+        })
+        .collect()
+}
+
+/// Every view's images, [view][row][column], the first view first.
+struct Observed {
+    mask: Vec<f32>,
+    depth: Option<Vec<f32>>,
+    shaded: Option<Vec<f32>>,
+}
+
+/// The observation from files: the first view's from the flags, the others' from the
+/// views file. A view without a depth image has no measurement anywhere.
+fn from_files(args: &Args, view: View, further: &[FurtherView]) -> Result<Observed> {
+    let shading = args.shading.shading()?;
+    let (w, h) = (view.camera.width, view.camera.height);
+    let first = args.observed.as_deref().expect("clap requires --observed");
+    let mut files = vec![(
+        Some(first.to_path_buf()),
+        args.observed_depth.clone(),
+        args.observed_shading.clone(),
+    )];
+    files.extend(
+        further
+            .iter()
+            .map(|f| (f.mask.clone(), f.depth.clone(), f.shading.clone())),
+    );
+    let with_depth = args.observed_depth.is_some();
+    let mut observed = Observed {
+        mask: Vec::new(),
+        depth: with_depth.then(Vec::new),
+        shaded: shading.map(|_| Vec::new()),
+    };
+    for (v, (mask, depth, shaded)) in files.into_iter().enumerate() {
+        let Some(mask) = mask else {
+            bail!("view {v} of the views file has no \"mask\" (needed with --observed)");
+        };
+        let mask = loss::load_mask(&mask, w, h)?;
+        if let Some(all) = observed.depth.as_mut() {
+            match depth {
+                Some(path) => all.extend(loss::load_depth(&path, w, h)?),
+                None => all.extend(std::iter::repeat(0.0).take(mask.len())),
+            }
+        }
+        if let Some(all) = observed.shaded.as_mut() {
+            let Some(path) = shaded else {
+                bail!(if v == 0 {
+                    "--shading with --observed needs the observed image too (--observed-shading)"
+                        .to_string()
+                } else {
+                    format!("--shading: view {v} of the views file has no \"shading\" image")
+                });
+            };
+            all.extend(loss::load_shading(&path, &mask, w, h)?);
+        }
+        observed.mask.extend(mask);
+    }
+    Ok(observed)
+}
+
+/// The observation rendered from a test mesh at the true pose, in every view.
+fn rendered(
+    ctx: &Context,
+    args: &Args,
+    mesh: &Path,
+    truth: View,
+    others: &[OtherView],
+) -> Result<Observed> {
+    let registrar = Registrar::new(ctx)?;
+    let mesh = Mesh::load_obj(mesh)?;
+    let views = register::all_views(truth, others);
+    let outputs = if args.depth {
+        Outputs::IdsBaryDepth
+    } else {
+        Outputs::Ids
+    };
+    let g = registrar
+        .renderer()
+        .rasterizer()
+        .render(ctx, &mesh, &views, outputs)?;
+    let shaded = args
+        .shading
+        .shading()?
+        .map(|s| eval::render_shading(ctx, &registrar, &mesh, &views, s))
+        .transpose()?;
+    Ok(Observed {
+        mask: g.ids.iter().map(|&id| (id > 0) as u32 as f32).collect(),
+        depth: g.depth.map(|d| d.iter().copied().collect()),
+        shaded,
+    })
+}
+
+pub fn run(args: &Args) -> Result<()> {
+    let space = ShapeSpace::load(&args.space)?;
+    let view = args.view.view()?;
+    let depth_loss = args.depth_loss.loss()?;
+    let further = match &args.views {
+        Some(path) => read_views(path, &view.camera)?,
+        None => Vec::new(),
+    };
+    let others: Vec<OtherView> = further.iter().map(|f| f.other).collect();
+    let ctx = Context::new()?;
+    let observed = match &args.observed_mesh {
+        None => from_files(args, view, &further)?,
+        Some(mesh) => {
+            let truth = match &args.true_pose {
+                Some(p) => parse_view(&args.view.intrinsics, &args.view.size, p, args.view.near)?,
+                None => view,
+            };
+            rendered(&ctx, args, mesh, truth, &others)?
+        }
+    };
+    // With the pose: the schedule of `vkdr eval` (pose alone first, then both).
+    let settings = EvalSettings::default();
+    let base = if args.optimize_pose {
+        settings.pose_noise
+    } else {
+        settings.known_pose
+    };
+    let optimizer = args.optimizer.as_deref().map(str::parse).transpose()?;
+    let observes_z = observed.depth.is_some() || !others.is_empty();
+    let params = RegisterParams {
+        iterations: args.iterations.unwrap_or(base.iterations),
+        loss: args.loss.parse()?,
+        optimizer: optimizer.unwrap_or(base.optimizer),
+        shading: args.shading.shading()?,
+        depth: observed.depth.is_some().then_some(depth_loss),
+        optimize_z: base.optimize_z || (args.optimize_pose && observes_z),
+        ..base
+    };
+    let job = Job {
+        shaded: observed.shaded.as_deref(),
+        depth: observed.depth.as_deref(),
+        others: &others,
+        ..Job::new(&space, &observed.mask, view)
+    };
+    let result = eval_cmd::register(&ctx, job, &params, &args.out)?;
+    println!(
+        "{} iterations in {:.1} ms ({:.2} ms per iteration); loss {:.5} -> {:.5}; code {:?}",
+        result.iterations,
+        result.milliseconds,
+        result.milliseconds / result.iterations as f64,
+        result.losses.first().copied().unwrap_or(f64::NAN),
+        result.losses.last().copied().unwrap_or(f64::NAN),
+        result
+            .code
+            .iter()
+            .map(|c| (c * 1e4).round() / 1e4)
+            .collect::<Vec<_>>()
+    );
+    println!(
+        "wrote {0}/deformed.obj, pose.json, code.npy, log.json, overlay_start.png, overlay_end.png{1}{2}",
+        args.out.display(),
+        if params.shading.is_some() {
+            ", shading_end.png"
+        } else {
+            ""
+        },
+        if others.is_empty() {
+            String::new()
+        } else {
+            format!(
+                " (the further views' pictures with the suffix _view1 to _view{})",
+                others.len()
+            )
+        }
+    );
+    Ok(())
+}
