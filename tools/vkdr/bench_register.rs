@@ -13,13 +13,13 @@ use glam::DVec3;
 
 use vkdr::camera::parse_size;
 use vkdr::dataset::{instance, Rng};
-use vkdr::diff::Shading;
+use vkdr::diff::{DepthLoss, Shading};
 use vkdr::eval::{self, surface_error, EvalSettings};
 use vkdr::gpu::Context;
 use vkdr::io::{write_atomically, write_png};
 use vkdr::plot::{Plot, PALETTE};
-use vkdr::raster::View;
-use vkdr::register::{Job, PassTimes, Registrar};
+use vkdr::raster::{Outputs, View};
+use vkdr::register::{Job, OtherView, PassTimes, Registrar};
 use vkdr::shape::ShapeSpace;
 use vkdr::Camera;
 
@@ -50,6 +50,13 @@ pub struct Args {
     /// Observe and compare grey Lambert shading too (the default light, at the camera).
     #[arg(long)]
     pub shading: bool,
+    /// Observe the test instance's depth too (noise-free; the default Huber loss).
+    #[arg(long)]
+    pub depth: bool,
+    /// Cameras, 1 to 6: the others at the same elevation, evenly spaced in azimuth, their
+    /// poses relative to the first known.
+    #[arg(long, default_value_t = 1)]
+    pub views: usize,
     /// Reuse the space.npz of an earlier run with the same category, subdivision and seed.
     #[arg(long)]
     pub space: Option<PathBuf>,
@@ -67,6 +74,9 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
     if args.repeats == 0 || args.batch == 0 || args.iterations == 0 {
         bail!("--repeats, --batch and --iterations must be at least 1");
     }
+    if !(1..=6).contains(&args.views) {
+        bail!("--views must be 1 to 6, not {}", args.views);
+    }
 
     // The category: a subdivided canonical, 10 training instances, one test instance.
     let mut rng = Rng::new(args.seed);
@@ -77,7 +87,7 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
         .checked_pow(args.subdivide)
         .and_then(|f| f.checked_mul(canonical.vertex_count() as u64))
         .unwrap_or(u64::MAX);
-    vkdr::diff::check_scene_fits(ctx, (width, height, 1), 1, vertices, 0)
+    vkdr::diff::check_scene_fits(ctx, (width, height, args.views as u32), 1, vertices, 0)
         .with_context(|| format!("--subdivide {}", args.subdivide))?;
     for _ in 0..args.subdivide {
         canonical = canonical.subdivided();
@@ -147,16 +157,36 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
         width,
         height,
     )?;
-    let pose = eval::view_pose(
-        rng.range(0.0, std::f64::consts::TAU),
-        rng.range(settings.elevation.0, settings.elevation.1),
-        settings.distance,
-    );
+    let azimuth = rng.range(0.0, std::f64::consts::TAU);
+    let elevation = rng.range(settings.elevation.0, settings.elevation.1);
+    let pose = eval::view_pose(azimuth, elevation, settings.distance);
+    let others: Vec<OtherView> = (1..args.views)
+        .map(|k| {
+            let turned = azimuth + std::f64::consts::TAU * k as f64 / args.views as f64;
+            OtherView {
+                camera,
+                from_first: pose
+                    .inverse()
+                    .followed_by(&eval::view_pose(turned, elevation, settings.distance)),
+            }
+        })
+        .collect();
+    let views = vkdr::register::all_views(View { camera, pose }, &others);
     let registrar = Registrar::new(ctx)?;
-    let observed = eval::render_mask(ctx, &registrar, &test, View { camera, pose })?;
+    let outputs = if args.depth {
+        Outputs::IdsBaryDepth
+    } else {
+        Outputs::Ids
+    };
+    let g = registrar
+        .renderer()
+        .rasterizer()
+        .render(ctx, &test, &views, outputs)?;
+    let observed: Vec<f32> = g.ids.iter().map(|&id| (id > 0) as u32 as f32).collect();
+    let depth: Option<Vec<f32>> = g.depth.map(|d| d.iter().copied().collect());
     let shading = args.shading.then(Shading::default);
     let shaded = shading
-        .map(|s| eval::render_shading(ctx, &registrar, &test, &[View { camera, pose }], s))
+        .map(|s| eval::render_shading(ctx, &registrar, &test, &views, s))
         .transpose()?;
     let jobs: Vec<Job> = (0..args.batch)
         .map(|_| {
@@ -168,6 +198,8 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
             );
             Job {
                 shaded: shaded.as_deref(),
+                depth: depth.as_deref(),
+                others: &others,
                 ..Job::new(
                     &space,
                     &observed,
@@ -182,6 +214,8 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
     let mut params = settings.pose_noise;
     params.iterations = args.iterations;
     params.shading = shading;
+    params.depth = args.depth.then(DepthLoss::default);
+    params.optimize_z = args.depth || args.views > 1;
     params.check_every = args.iterations; // no plateau stop: every run does all iterations
 
     // One registration, end to end (scene set-up included), after a warm-up.
@@ -265,7 +299,12 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
                 s.light, s.ambient
             ),
             None => String::new(),
-        },
+        } + if args.depth { " and its depth" } else { "" }
+            + &if args.views > 1 {
+                format!(" in {} views (evenly spaced in azimuth)", args.views)
+            } else {
+                String::new()
+            },
         faces = space.canonical.triangle_count(),
         dims = space.dims(),
         w = width,
@@ -299,13 +338,15 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
     print!("{summary}");
     write_atomically(&args.out.join("bench_register.md"), summary.as_bytes())?;
     let json = format!(
-        "{{\"device\": {device:?}, \"category\": {:?}, \"shading\": {}, \"vertices\": {m}, \"width\": {}, \"height\": {}, \"iterations\": {}, \
+        "{{\"device\": {device:?}, \"category\": {:?}, \"shading\": {}, \"depth\": {}, \"views\": {}, \"vertices\": {m}, \"width\": {}, \"height\": {}, \"iterations\": {}, \
          \"wall_ms\": {walls:?}, \"wall_ms_median\": {wall:.3}, \
          \"passes_ms\": {{\"deform\": {:.4}, \"forward\": {:.4}, \"backward\": {:.4}, \"update\": {:.4}, \"total\": {:.4}}}, \
          \"batch\": {}, \"sequential_ms\": {sequential:.3}, \"batched_ms\": {batched:.3}, \"oracle_m\": {oracle:e}, \
          \"curve\": [{}]}}\n",
         args.category,
         shading.is_some(),
+        args.depth,
+        args.views,
         width,
         height,
         args.iterations,
