@@ -299,6 +299,10 @@ pub struct EvalSettings {
     /// view's, their poses relative to the first known. With more than one the z
     /// translation is optimised with pose noise.
     pub views: usize,
+    /// Keep z at its true value even where depth or a second view observe it (as with one
+    /// mask, where the distance is given): separates what the observation tells from what
+    /// the free distance costs.
+    pub fix_z: bool,
 }
 
 /// The least azimuth between two views of one trial, radians (60 degrees).
@@ -328,7 +332,12 @@ impl EvalSettings {
         } else {
             "one view".into()
         };
-        format!("{}; {views}", parts.join(", "))
+        let z = if self.fix_z && (self.depth.is_some() || self.views > 1) {
+            "; the distance (z) known"
+        } else {
+            ""
+        };
+        format!("{}; {views}{z}", parts.join(", "))
     }
 }
 
@@ -392,6 +401,7 @@ impl Default for EvalSettings {
             depth: None,
             depth_noise: 0.0,
             views: 1,
+            fix_z: false,
         }
     }
 }
@@ -690,7 +700,7 @@ pub fn evaluate_instance(
         ..settings.known_pose
     };
     // Depth or a second view observe the distance: z is optimised too.
-    let observes_z = settings.depth.is_some() || settings.views > 1;
+    let observes_z = (settings.depth.is_some() || settings.views > 1) && !settings.fix_z;
     let pose_noise = RegisterParams {
         shading: settings.shading,
         depth: settings.depth,

@@ -165,9 +165,11 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
             let turned = azimuth + std::f64::consts::TAU * k as f64 / args.views as f64;
             OtherView {
                 camera,
-                from_first: pose
-                    .inverse()
-                    .followed_by(&eval::view_pose(turned, elevation, settings.distance)),
+                from_first: pose.inverse().followed_by(&eval::view_pose(
+                    turned,
+                    elevation,
+                    settings.distance,
+                )),
             }
         })
         .collect();

@@ -264,6 +264,10 @@ struct EvalArgs {
     /// every other, their relative poses known, one code and object pose for all.
     #[arg(long, default_value_t = 1)]
     views: usize,
+    /// Keep the distance (z) at its true value with pose noise even with --depth or --views
+    /// (as with one mask).
+    #[arg(long)]
+    fix_z: bool,
     /// Run even where `check-dataset` finds the set unusable (millimetres, no meshes, ...).
     #[arg(long)]
     skip_checks: bool,
@@ -663,6 +667,7 @@ fn eval_command(args: &EvalArgs) -> Result<()> {
         );
     }
     settings.views = args.views;
+    settings.fix_z = args.fix_z;
     let loss: Option<vkdr::loss::Loss> = args.loss.as_deref().map(str::parse).transpose()?;
     let optimizer: Option<vkdr::register::Optimizer> =
         args.optimizer.as_deref().map(str::parse).transpose()?;
