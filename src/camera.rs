@@ -6,7 +6,7 @@
 
 use glam::{DMat3, DVec3};
 
-use crate::error::{Error, Result};
+use crate::error::{show, Error, Result};
 
 /// Intrinsics and image size of an OpenCV pinhole camera.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -24,6 +24,8 @@ pub struct Camera {
 impl Camera {
     /// Default near plane: 1 mm.
     pub const DEFAULT_NEAR: f64 = 1e-3;
+    /// The largest focal length or principal point coordinate, pixels.
+    pub const MAX_PIXELS: f64 = 1e7;
 
     pub fn new(fx: f64, fy: f64, cx: f64, cy: f64, width: u32, height: u32) -> Result<Self> {
         Self {
@@ -38,15 +40,18 @@ impl Camera {
         .validated()
     }
 
-    /// Checks that every value is finite and positive where it must be.
+    /// Checks that every value is finite, positive where it must be, and small enough that
+    /// the device's float32 projection cannot overflow: |fx|, |fy|, |cx|, |cy| at most
+    /// [`Camera::MAX_PIXELS`], the near plane in (0, [`Pose::MAX_TRANSLATION`]].
     pub fn validated(self) -> Result<Self> {
-        let finite = [self.fx, self.fy, self.cx, self.cy, self.near]
+        let intrinsics = [self.fx, self.fy, self.cx, self.cy];
+        let in_range = intrinsics
             .iter()
-            .all(|v| v.is_finite());
-        if !finite || self.fx <= 0.0 || self.fy <= 0.0 {
+            .all(|v| v.is_finite() && v.abs() <= Self::MAX_PIXELS);
+        if !in_range || self.fx <= 0.0 || self.fy <= 0.0 {
             return Err(Error::InvalidInput(format!(
-                "intrinsics fx={}, fy={}, cx={}, cy={} must be finite with fx, fy > 0",
-                self.fx, self.fy, self.cx, self.cy
+                "intrinsics fx={}, fy={}, cx={}, cy={} must be finite, at most {:e} px, with fx, fy > 0",
+                show(self.fx), show(self.fy), show(self.cx), show(self.cy), Self::MAX_PIXELS
             )));
         }
         if self.width == 0 || self.height == 0 {
@@ -55,10 +60,11 @@ impl Camera {
                 self.width, self.height
             )));
         }
-        if self.near <= 0.0 {
+        if !(self.near > 0.0 && self.near <= Pose::MAX_TRANSLATION) {
             return Err(Error::InvalidInput(format!(
-                "near plane {} must be > 0",
-                self.near
+                "near plane {} m must be > 0 and at most {:e} m",
+                show(self.near),
+                Pose::MAX_TRANSLATION
             )));
         }
         Ok(self)
@@ -92,10 +98,30 @@ pub struct Pose {
 }
 
 impl Pose {
+    /// The largest translation coordinate, metres (1000 km: past it float32 on the device
+    /// has no millimetres left).
+    pub const MAX_TRANSLATION: f64 = 1e6;
+    /// The longest axis-angle vector, radians (past it the angle has lost its precision).
+    pub const MAX_ROTATION: f64 = 1e3;
+
+    /// A pose; an error unless every value is finite, each translation coordinate at most
+    /// [`Pose::MAX_TRANSLATION`] and the rotation at most [`Pose::MAX_ROTATION`] long.
     pub fn new(translation: [f64; 3], rotation: [f64; 3]) -> Result<Self> {
         if translation.iter().chain(&rotation).any(|v| !v.is_finite()) {
             return Err(Error::InvalidInput(format!(
                 "pose {translation:?} {rotation:?} has a non-finite value"
+            )));
+        }
+        if translation.iter().any(|t| t.abs() > Self::MAX_TRANSLATION) {
+            return Err(Error::InvalidInput(format!(
+                "pose translation {translation:?} is past {:e} m",
+                Self::MAX_TRANSLATION
+            )));
+        }
+        if DVec3::from(rotation).length() > Self::MAX_ROTATION {
+            return Err(Error::InvalidInput(format!(
+                "pose rotation {rotation:?} is longer than {:e} rad (give the angle modulo 2 pi)",
+                Self::MAX_ROTATION
             )));
         }
         Ok(Self {

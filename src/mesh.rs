@@ -25,18 +25,23 @@ pub struct Mesh {
 }
 
 impl Mesh {
+    /// The largest vertex coordinate, metres (as [`crate::Pose::MAX_TRANSLATION`]: past it
+    /// the device's float32 has no millimetres left).
+    pub const MAX_COORDINATE: f64 = 1e6;
+
     /// Checks and builds a mesh: at least one triangle, finite coordinates, indices in
     /// range.
     pub fn new(positions: Vec<[f32; 3]>, triangles: Vec<[u32; 3]>) -> Result<Self> {
         if triangles.is_empty() {
             return Err(Error::InvalidInput("mesh has no triangles".into()));
         }
-        if let Some(i) = positions
-            .iter()
-            .position(|p| p.iter().any(|c| !c.is_finite()))
-        {
+        if let Some(i) = positions.iter().position(|p| {
+            p.iter()
+                .any(|c| !(c.is_finite() && c.abs() as f64 <= Mesh::MAX_COORDINATE))
+        }) {
             return Err(Error::InvalidInput(format!(
-                "vertex {i} has a non-finite coordinate {:?}",
+                "vertex {i} has a coordinate that is not finite or past {:e} m: {:?}",
+                Mesh::MAX_COORDINATE,
                 positions[i]
             )));
         }

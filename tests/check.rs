@@ -122,6 +122,7 @@ fn vkdr(args: &[&str]) -> (bool, String) {
 fn an_unusable_category_stops_every_command_before_any_work() {
     let dir = category("check_cli");
     let out = dir.parent().unwrap().join("out");
+    let _ = std::fs::remove_dir_all(&out);
     let (ok, said) = vkdr(&[
         "check-dataset",
         dir.to_str().unwrap(),

@@ -91,7 +91,7 @@ fn a_mask_of_the_wrong_size_is_an_error() {
     assert!(err.contains("20x10") && err.contains("10x20"), "{err}");
     let mask = load_mask(&path, 20, 10).unwrap();
     assert!(mask.iter().all(|&m| m == 1.0));
-    // Black is background, whatever the format's alpha says.
+    // Black is background in a mask saved opaque (alpha used nowhere).
     let mut picture = image::GrayImage::new(20, 10);
     picture.put_pixel(3, 4, image::Luma([200]));
     picture.save(&path).unwrap();
@@ -172,6 +172,48 @@ fn depth_reads_as_metres_from_npy_and_millimetre_pngs_and_refuses_bad_values() {
     huge.extend(header);
     std::fs::write(&npy, &huge).unwrap();
     let err = load_depth(&npy, w, h).unwrap_err().to_string();
-    assert!(err.contains("1000000000000"), "{err}");
+    assert!(err.contains("declares shape (1000000000000, 3)"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_mask_is_its_alpha_where_it_has_one_and_any_nonzero_channel_otherwise() {
+    let dir = std::env::temp_dir().join(format!("vkdr-mask-kinds-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (w, h) = (4u32, 2u32);
+    let inside = |x: u32, y: u32| x >= 2 && y == 1;
+    let expected: Vec<f32> = (0..h)
+        .flat_map(|y| (0..w).map(move |x| inside(x, y) as u32 as f32))
+        .collect();
+    // 16-bit grey whose object value is 1 (of 65535).
+    let grey16 = image::ImageBuffer::<image::Luma<u16>, _>::from_fn(w, h, |x, y| {
+        image::Luma([inside(x, y) as u16])
+    });
+    // An RGBA cut-out: black object on transparent white.
+    let cutout = image::RgbaImage::from_fn(w, h, |x, y| {
+        if inside(x, y) {
+            image::Rgba([0, 0, 0, 255])
+        } else {
+            image::Rgba([255, 255, 255, 0])
+        }
+    });
+    // 8-bit colour: only the blue channel marks the object.
+    let blue = image::RgbImage::from_fn(w, h, |x, y| image::Rgb([0, 0, 9 * inside(x, y) as u8]));
+    let paths = [
+        dir.join("grey16.png"),
+        dir.join("cutout.png"),
+        dir.join("blue.png"),
+    ];
+    grey16.save(&paths[0]).unwrap();
+    cutout.save(&paths[1]).unwrap();
+    blue.save(&paths[2]).unwrap();
+    for path in &paths {
+        assert_eq!(
+            load_mask(path, w, h).unwrap(),
+            expected,
+            "{}",
+            path.display()
+        );
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -356,6 +356,9 @@ fn the_register_command_takes_depth_and_a_views_file() {
     }
     // A further view of another size is refused, naming the file and the sizes.
     std::fs::write(dir.join("views.json"), views("[100, 150]")).unwrap();
+    let out = p("out2");
+    let at = args.iter().position(|a| *a == "--out").unwrap();
+    args[at + 1] = &out;
     let said = vkdr_fails(&args);
     assert!(
         said.contains("views.json") && said.contains("200x150"),

@@ -29,7 +29,7 @@ use std::time::Instant;
 use bytemuck::{Pod, Zeroable};
 use glam::DVec3;
 
-use crate::error::{Error, Result};
+use crate::error::{show, Error, Result};
 use crate::gpu::{
     spans, spirv, Binding, BindingKind, Buffer, BufferKind, ComputePipeline, Context, Groups,
     Recorder, LOOP_LIMIT,
@@ -87,21 +87,38 @@ impl Default for CpdParams {
 }
 
 impl CpdParams {
-    fn validate(&self) -> Result<()> {
-        let ok = self.beta > 0.0
-            && self.beta.is_finite()
-            && self.lambda > 0.0
-            && self.lambda.is_finite()
-            && self.w > 0.0
-            && self.w < 1.0
-            && self.tolerance >= 0.0;
-        if ok {
-            Ok(())
+    /// An error naming the first parameter out of its range: beta and lambda in
+    /// [1e-6, 1e6] (past them the kernel or the smoothness term leaves float range and
+    /// the iterations diverge), 0 < w < 1, a tolerance in [0, 1), 1 to 100 000 iterations.
+    pub fn validate(&self) -> Result<()> {
+        let within = |v: f64| v.is_finite() && (1e-6..=1e6).contains(&v);
+        let problem = if !within(self.beta) {
+            Some(format!("beta {} must be in [1e-6, 1e6]", show(self.beta)))
+        } else if !within(self.lambda) {
+            Some(format!(
+                "lambda {} must be in [1e-6, 1e6]",
+                show(self.lambda)
+            ))
+        } else if !(self.w > 0.0 && self.w < 1.0) {
+            Some(format!("w {} must be in (0, 1)", show(self.w)))
+        } else if !(self.tolerance >= 0.0 && self.tolerance < 1.0) {
+            Some(format!(
+                "tolerance {} must be in [0, 1)",
+                show(self.tolerance)
+            ))
+        } else if !(1..=100_000).contains(&self.max_iterations) {
+            Some(format!(
+                "max iterations {} must be 1 to 100000",
+                self.max_iterations
+            ))
+        } else if self.rank == Some(0) {
+            Some("rank 0: the low-rank kernel needs at least one landmark".into())
         } else {
-            Err(Error::InvalidInput(format!(
-                "CPD parameters beta={}, lambda={}, w={} need beta > 0, lambda > 0, 0 < w < 1",
-                self.beta, self.lambda, self.w
-            )))
+            None
+        };
+        match problem {
+            None => Ok(()),
+            Some(p) => Err(Error::InvalidInput(format!("CPD parameter {p}"))),
         }
     }
 }
@@ -561,6 +578,18 @@ fn check_points(points: &[DVec3], what: &str) -> Result<()> {
         return Err(Error::InvalidInput(format!(
             "{what} point {i} is not finite: {:?}",
             points[i]
+        )));
+    }
+    // Every point the same (or all within float64 rounding of one): no size to normalise
+    // by, no shape to register.
+    let first = points[0];
+    let spread = points
+        .iter()
+        .map(|p| (*p - first).abs().max_element())
+        .fold(0.0, f64::max);
+    if spread <= 1e-12 * first.abs().max_element().max(1e-300) {
+        return Err(Error::InvalidInput(format!(
+            "the {what} points are all the same point {first:?}: CPD needs a shape"
         )));
     }
     Ok(())

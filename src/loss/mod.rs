@@ -66,20 +66,25 @@ impl std::str::FromStr for Loss {
     }
 }
 
-/// Reads a mask PNG: 1 where any colour channel is nonzero, else 0, row-major (an alpha
-/// channel is ignored: opaque black is background). A size other
-/// than `width` x `height` is an error (never a silent resize).
+/// Reads a mask PNG of `width` x `height`, row-major. Where the image has an alpha channel
+/// that is used (some pixel not fully opaque), alpha is the mask: 1 where it is nonzero (a
+/// cut-out, whatever its colour). Otherwise (no alpha, or opaque everywhere, as many tools
+/// save masks) 1 where any colour channel is nonzero, at any bit depth (a 16-bit mask
+/// whose object value is 1 reads as object). A size other than `width` x `height` is an
+/// error (never a silent resize).
 pub fn load_mask(path: &Path, width: u32, height: u32) -> Result<Vec<f32>> {
-    let rgb = open_image(path, "mask", width, height)?.to_rgb8();
-    Ok(rgb
+    let image = open_image(path, "mask", width, height)?;
+    let object = |on: bool| if on { 1.0 } else { 0.0 };
+    if image.color().has_alpha() {
+        let rgba = image.to_rgba16();
+        if rgba.pixels().any(|p| p.0[3] != u16::MAX) {
+            return Ok(rgba.pixels().map(|p| object(p.0[3] != 0)).collect());
+        }
+    }
+    Ok(image
+        .to_rgb16()
         .pixels()
-        .map(|p| {
-            if p.0.iter().any(|&c| c != 0) {
-                1.0
-            } else {
-                0.0
-            }
-        })
+        .map(|p| object(p.0.iter().any(|&c| c != 0)))
         .collect())
 }
 
@@ -107,23 +112,31 @@ pub fn load_depth(path: &Path, width: u32, height: u32) -> Result<Vec<f32>> {
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("npy"));
     let depth: Vec<f32> = if is_npy {
-        let bytes = std::fs::read(path).map_err(|e| Error::format(path, e.to_string()))?;
-        let shape = npy_shape(&bytes).map_err(|m| Error::format(path, m))?;
-        if shape != [height as usize, width as usize] {
+        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        // Never allocate for a header that claims more than the file holds.
+        crate::io::check_npy_size(&path.display().to_string(), &bytes)?;
+        use ndarray_npy::ReadNpyExt;
+        let array = match ndarray::Array2::<f32>::read_npy(&bytes[..]) {
+            Ok(a) => a,
+            Err(_) => ndarray::Array2::<f64>::read_npy(&bytes[..])
+                .map_err(|e| {
+                    Error::format(
+                        path,
+                        format!("not an H x W array of float32 or float64: {e}"),
+                    )
+                })?
+                .mapv(|z| z as f32),
+        };
+        if array.dim() != (height as usize, width as usize) {
             return Err(Error::format(
                 path,
-                format!("depth is {shape:?} (rows, columns) but --size is {width}x{height}"),
+                format!(
+                    "depth is {:?} (rows, columns) but --size is {width}x{height}",
+                    array.dim()
+                ),
             ));
         }
-        use ndarray_npy::ReadNpyExt;
-        match ndarray::Array2::<f32>::read_npy(&bytes[..]) {
-            Ok(a) => a.iter().copied().collect(),
-            Err(_) => ndarray::Array2::<f64>::read_npy(&bytes[..])
-                .map_err(|e| Error::format(path, format!("not float32 or float64: {e}")))?
-                .iter()
-                .map(|&z| z as f32)
-                .collect(),
-        }
+        array.iter().copied().collect()
     } else {
         match open_image(path, "depth image", width, height)? {
             image::DynamicImage::ImageLuma16(grey) => {
@@ -152,41 +165,6 @@ pub fn load_depth(path: &Path, width: u32, height: u32) -> Result<Vec<f32>> {
         ));
     }
     Ok(depth)
-}
-
-/// The shape in a `.npy` header, read before any array is allocated (a header may claim
-/// any size).
-fn npy_shape(bytes: &[u8]) -> std::result::Result<Vec<usize>, String> {
-    if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
-        return Err("not a .npy file".into());
-    }
-    let (length, start) = match bytes[6] {
-        1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10usize),
-        2 | 3 if bytes.len() >= 12 => (
-            u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize,
-            12,
-        ),
-        v => return Err(format!(".npy version {v} is not supported")),
-    };
-    let header = bytes
-        .get(start..start.saturating_add(length))
-        .ok_or("the .npy header is cut short")?;
-    let header = String::from_utf8_lossy(header);
-    let shape = header
-        .split_once("'shape':")
-        .and_then(|(_, rest)| rest.split_once('('))
-        .and_then(|(_, rest)| rest.split_once(')'))
-        .map(|(inside, _)| inside)
-        .ok_or("the .npy header names no shape")?;
-    shape
-        .split(',')
-        .map(str::trim)
-        .filter(|s| !s.is_empty())
-        .map(|s| {
-            s.parse::<usize>()
-                .map_err(|_| format!("bad .npy shape ({shape})"))
-        })
-        .collect()
 }
 
 /// Loads an observed shading image (grey, or colour taken as its luminance) of the given

@@ -123,6 +123,58 @@ pub struct RegisterParams {
 }
 
 impl RegisterParams {
+    /// An error naming the first parameter out of range: 1 to [`MAX_ITERATIONS`]
+    /// iterations (the optimiser's state holds every iteration's loss and code, with f32
+    /// indices on the device), steps, momentum, decay and plateau finite and in range, and
+    /// a valid depth loss.
+    pub fn validate(&self) -> Result<()> {
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        let problem = if self.iterations == 0 {
+            Some("registration needs at least one iteration".to_string())
+        } else if let Some((what, count)) = [
+            ("iterations", self.iterations),
+            ("alignment iterations", self.align),
+        ]
+        .into_iter()
+        .find(|&(_, count)| count > MAX_ITERATIONS)
+        {
+            Some(format!(
+                "{count} {what}: at most {MAX_ITERATIONS} are supported"
+            ))
+        } else if !(positive(self.latent_step) && self.latent_step <= 3.0) {
+            Some(format!(
+                "latent step {} must be in (0, 3] training standard deviations",
+                crate::error::show(self.latent_step)
+            ))
+        } else if !(positive(self.translation_step) && self.translation_step <= 1.0) {
+            Some(format!(
+                "translation step {} must be in (0, 1] m",
+                crate::error::show(self.translation_step)
+            ))
+        } else if !(positive(self.rotation_step) && self.rotation_step <= 1.0) {
+            Some(format!(
+                "rotation step {} must be in (0, 1] rad",
+                crate::error::show(self.rotation_step)
+            ))
+        } else if !(0.0..1.0).contains(&self.momentum) || !(self.decay > 0.0 && self.decay <= 1.0) {
+            Some(format!(
+                "momentum {} must be in [0, 1) and decay {} in (0, 1]",
+                self.momentum, self.decay
+            ))
+        } else if !(self.plateau >= 0.0 && self.plateau < 1.0) {
+            Some(format!("plateau {} must be in [0, 1)", self.plateau))
+        } else {
+            None
+        };
+        if let Some(p) = problem {
+            return Err(Error::InvalidInput(p));
+        }
+        if let Some(depth) = &self.depth {
+            depth.validate()?;
+        }
+        Ok(())
+    }
+
     /// Iterations at most, the pose alignment's included.
     pub fn total_iterations(&self) -> usize {
         self.iterations + if self.pose_every > 0 { self.align } else { 0 }
@@ -310,23 +362,7 @@ impl Registrar {
         mut on_chunk: impl FnMut(usize, f64),
     ) -> Result<Vec<Registration>> {
         let started = Instant::now();
-        if params.iterations == 0 {
-            return Err(Error::InvalidInput(
-                "registration needs at least one iteration".into(),
-            ));
-        }
-        // The optimiser state holds every iteration's loss and code (f32 indices on the
-        // device): refuse counts whose layout would not fit rather than wrap.
-        for (what, count) in [
-            ("iterations", params.iterations),
-            ("alignment iterations", params.align),
-        ] {
-            if count > MAX_ITERATIONS {
-                return Err(Error::InvalidInput(format!(
-                    "{count} {what}: at most {MAX_ITERATIONS} are supported"
-                )));
-            }
-        }
+        params.validate()?;
         if params.pose_every == 0 || params.align == 0 {
             return self.run(ctx, jobs, params, false, started, 0, &mut on_chunk);
         }

@@ -163,15 +163,25 @@ fn category_dirs(dataset: &Path) -> Result<Vec<PathBuf>> {
 
 /// Builds each category's shape space from train/ and evaluates every test instance,
 /// after checking every chosen category (`check-dataset`): what would make the figures
-/// meaningless stops the run before any work unless `skip_checks`.
+/// meaningless stops the run before any work unless `skip_checks`. `on_category` sees all
+/// rows so far after each category (to write them: a later failure keeps them). A
+/// category that fails on the way (a mesh that does not load, a registration error) does
+/// not stop the others: the failures are returned next to the rows.
 pub fn eval(
     ctx: &Context,
     dataset: &Path,
     settings: &EvalSettings,
     only: Option<&[String]>,
     skip_checks: bool,
-) -> Result<Vec<Row>> {
+    mut on_category: impl FnMut(&[Row]) -> Result<()>,
+) -> Result<(Vec<Row>, Vec<String>)> {
     let mut chosen = category_dirs(dataset)?;
+    if chosen.is_empty() {
+        bail!(
+            "{} holds no category folders (each with canonical.obj, train/ and test/)",
+            dataset.display()
+        );
+    }
     if let Some(only) = only {
         let name = |d: &PathBuf| {
             d.file_name()
@@ -203,73 +213,96 @@ pub fn eval(
     }
     let registrar = Registrar::new(ctx)?;
     let mut rows = Vec::new();
+    let mut failures = Vec::new();
     for (dir, up) in checked {
         let category = dir
             .file_name()
             .unwrap_or_default()
             .to_string_lossy()
             .into_owned();
-        let settings = &EvalSettings {
+        let settings = EvalSettings {
             up,
             ..settings.clone()
         };
-        let canonical = Mesh::load_obj(dir.join("canonical.obj"))?;
-        let training: Vec<(String, Vec<DVec3>)> = obj_files(&dir.join("train"))?
-            .iter()
-            .map(|f| Ok((f.display().to_string(), Mesh::load_obj(f)?.points())))
-            .collect::<Result<_>>()?;
-        eprintln!(
-            "{category}: shape space from {} training instances",
-            training.len()
-        );
-        let space = ShapeSpace::build(
-            ctx,
-            &category,
-            &canonical,
-            &training,
-            settings.dims,
-            &settings.cpd,
-            |_, _, _| {},
-        )?;
-        for test in obj_files(&dir.join("test"))? {
-            let name = test
-                .file_stem()
-                .unwrap_or_default()
-                .to_string_lossy()
-                .into_owned();
-            let mesh = Mesh::load_obj(&test)?;
-            let row = eval::evaluate_instance(
-                ctx,
-                &registrar,
-                &space,
-                &category,
-                &name,
-                &mesh,
-                settings,
-                |done, total| {
-                    eprint!("\r  {name:<22} trial {done}/{total}  ");
-                },
-            )?;
-            eprintln!(
-                "\r  {name:<22} oracle {:.2} mm (space optimum {:.2}), known pose {:.2} mm ({:.2}x), pose noise {:.2} mm ({:.2}x), {:.0} ms",
-                1e3 * row.oracle,
-                1e3 * row.space_optimum,
-                1e3 * row.known_pose.mean,
-                row.known_pose.mean / row.oracle,
-                1e3 * row.pose_noise.mean,
-                row.pose_noise.mean / row.oracle,
-                row.ms
-            );
-            if let Some(f) = row.from_truth {
-                eprintln!(
-                    "  {:<22} from the true pose {:.2} mm ({:.2}x)",
-                    "",
-                    1e3 * f.mean,
-                    f.mean / row.oracle
-                );
+        match evaluate_category(ctx, &registrar, &dir, &category, &settings) {
+            Ok(of) => {
+                rows.extend(of);
+                on_category(&rows)?;
             }
-            rows.push(row);
+            Err(e) => {
+                eprintln!("\n{category}: failed, going on with the others: {e:#}");
+                failures.push(format!("{category}: {e:#}"));
+            }
         }
+    }
+    Ok((rows, failures))
+}
+
+/// One category: its shape space from train/, then every test instance.
+fn evaluate_category(
+    ctx: &Context,
+    registrar: &Registrar,
+    dir: &Path,
+    category: &str,
+    settings: &EvalSettings,
+) -> Result<Vec<Row>> {
+    let canonical = Mesh::load_obj(dir.join("canonical.obj"))?;
+    let training: Vec<(String, Vec<DVec3>)> = obj_files(&dir.join("train"))?
+        .iter()
+        .map(|f| Ok((f.display().to_string(), Mesh::load_obj(f)?.points())))
+        .collect::<Result<_>>()?;
+    eprintln!(
+        "{category}: shape space from {} training instances",
+        training.len()
+    );
+    let space = ShapeSpace::build(
+        ctx,
+        category,
+        &canonical,
+        &training,
+        settings.dims,
+        &settings.cpd,
+        |_, _, _| {},
+    )?;
+    let mut rows = Vec::new();
+    for test in obj_files(&dir.join("test"))? {
+        let name = test
+            .file_stem()
+            .unwrap_or_default()
+            .to_string_lossy()
+            .into_owned();
+        let mesh = Mesh::load_obj(&test)?;
+        let row = eval::evaluate_instance(
+            ctx,
+            registrar,
+            &space,
+            category,
+            &name,
+            &mesh,
+            settings,
+            |done, total| {
+                eprint!("\r  {name:<22} trial {done}/{total}  ");
+            },
+        )?;
+        eprintln!(
+            "\r  {name:<22} oracle {:.2} mm (space optimum {:.2}), known pose {:.2} mm ({:.2}x), pose noise {:.2} mm ({:.2}x), {:.0} ms",
+            1e3 * row.oracle,
+            1e3 * row.space_optimum,
+            1e3 * row.known_pose.mean,
+            row.known_pose.mean / row.oracle,
+            1e3 * row.pose_noise.mean,
+            row.pose_noise.mean / row.oracle,
+            row.ms
+        );
+        if let Some(f) = row.from_truth {
+            eprintln!(
+                "  {:<22} from the true pose {:.2} mm ({:.2}x)",
+                "",
+                1e3 * f.mean,
+                f.mean / row.oracle
+            );
+        }
+        rows.push(row);
     }
     Ok(rows)
 }

@@ -6,6 +6,7 @@ mod check_cmd;
 mod cpd_cmd;
 mod eval_cmd;
 mod grad;
+mod out;
 mod pictures;
 mod register_cmd;
 mod shape_cmd;
@@ -33,6 +34,10 @@ use vkdr::{Camera, Mesh, Pose};
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// Write into an --out folder that already holds files (files of the same names are
+    /// replaced, the rest stay), or over an existing --out file.
+    #[arg(long, global = true)]
+    force: bool,
 }
 
 #[derive(Subcommand)]
@@ -131,19 +136,19 @@ enum Command {
 #[derive(clap::Args)]
 struct CpdArgs {
     /// Kernel width, in units of the source's RMS radius.
-    #[arg(long, default_value_t = CpdParams::default().beta)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = CpdParams::default().beta)]
     beta: f64,
     /// Smoothness weight.
-    #[arg(long = "lambda", default_value_t = CpdParams::default().lambda)]
+    #[arg(long = "lambda", allow_negative_numbers = true, default_value_t = CpdParams::default().lambda)]
     lambda: f64,
     /// Outlier weight, in (0, 1).
-    #[arg(long, default_value_t = CpdParams::default().w)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = CpdParams::default().w)]
     w: f64,
     #[arg(long, default_value_t = CpdParams::default().max_iterations)]
     max_iterations: usize,
     /// Stop when an iteration lowers the objective (negative log-likelihood plus the
     /// smoothness term) by less than this fraction of it.
-    #[arg(long, default_value_t = CpdParams::default().tolerance)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = CpdParams::default().tolerance)]
     tolerance: f64,
     /// Replace the kernel by its Nystrom approximation from this many landmarks (faster,
     /// approximate); by default the M-step uses the exact kernel.
@@ -155,8 +160,9 @@ struct CpdArgs {
 }
 
 impl CpdArgs {
-    fn params(&self) -> CpdParams {
-        CpdParams {
+    /// The parameters, checked before any file is read.
+    fn params(&self) -> Result<CpdParams> {
+        let params = CpdParams {
             beta: self.beta,
             lambda: self.lambda,
             w: self.w,
@@ -164,7 +170,9 @@ impl CpdArgs {
             tolerance: self.tolerance,
             rank: self.rank,
             accelerate: !self.no_accelerate,
-        }
+        };
+        params.validate()?;
+        Ok(params)
     }
 }
 
@@ -181,7 +189,7 @@ struct ViewArgs {
     #[arg(long, allow_hyphen_values = true)]
     pose: String,
     /// Near clipping distance in metres.
-    #[arg(long, default_value_t = Camera::DEFAULT_NEAR)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = Camera::DEFAULT_NEAR)]
     near: f64,
 }
 
@@ -230,15 +238,15 @@ struct EvalArgs {
     #[arg(long)]
     loss: Option<String>,
     /// Length of the first latent step, in training standard deviations.
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.5)]
     latent_step: f64,
     /// Optimiser of both conditions: sgd | adam | bfgs (default: each condition's own).
     #[arg(long)]
     optimizer: Option<String>,
     /// First pose steps with pose noise: translation (m) and rotation (rad).
-    #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.translation_step)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.translation_step)]
     translation_step: f64,
-    #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.rotation_step)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.rotation_step)]
     rotation_step: f64,
     /// With pose noise: update the pose once every this many iterations...
     #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.pose_every)]
@@ -256,7 +264,12 @@ struct EvalArgs {
     #[arg(long)]
     depth: bool,
     /// Standard deviation of Gaussian noise added to every measured depth, metres.
-    #[arg(long, requires = "depth", default_value_t = 0.0)]
+    #[arg(
+        long,
+        allow_negative_numbers = true,
+        requires = "depth",
+        default_value_t = 0.0
+    )]
     depth_noise: f64,
     #[command(flatten)]
     depth_loss: DepthLossArgs,
@@ -278,10 +291,10 @@ struct EvalArgs {
 #[derive(clap::Args)]
 struct DepthLossArgs {
     /// Depth residuals up to this (metres) cost quadratically, beyond linearly (Huber).
-    #[arg(long, default_value_t = vkdr::diff::DepthLoss::default().scale)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = vkdr::diff::DepthLoss::default().scale)]
     depth_scale: f64,
     /// Weight of the depth term against the mask (or shading) term.
-    #[arg(long, default_value_t = vkdr::diff::DepthLoss::default().weight)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = vkdr::diff::DepthLoss::default().weight)]
     depth_weight: f64,
 }
 
@@ -306,7 +319,7 @@ struct ShadingArgs {
     #[arg(long, requires = "shading", default_value_t = default_light())]
     light: String,
     /// Ambient term of the shading, in [0, 1).
-    #[arg(long, requires = "shading", default_value_t = vkdr::diff::Shading::default().ambient)]
+    #[arg(long, allow_negative_numbers = true, requires = "shading", default_value_t = vkdr::diff::Shading::default().ambient)]
     ambient: f64,
 }
 
@@ -351,6 +364,13 @@ struct GradArgs {
 
 fn main() {
     let cli = Cli::parse();
+    let created = match claim_out(&cli.command, cli.force) {
+        Ok(created) => created,
+        Err(e) => {
+            eprintln!("error: {}", report(&e));
+            std::process::exit(1);
+        }
+    };
     let result = match cli.command {
         Command::Info => info(),
         Command::CheckDataset { dataset, out } => check_cmd::run(&dataset, &out),
@@ -372,7 +392,7 @@ fn main() {
             seed,
             train,
             test,
-        } => gen_dataset(&out, seed, train, test),
+        } => gen_dataset(&out, seed, train, test, cli.force),
         Command::Register(args) => register_cmd::run(&args),
         Command::Eval(args) => eval_command(&args),
         Command::ShapeSpace {
@@ -382,16 +402,21 @@ fn main() {
             cpd,
             skip_checks,
             out,
-        } => check_cmd::check_first(&category_dir, skip_checks, canonical.is_some()).and_then(
-            |_| shape_cmd::run(&category_dir, canonical.as_deref(), dims, &cpd.params(), &out),
-        ),
+        } => (|| {
+            let params = cpd.params()?;
+            if dims == 0 {
+                bail!("--dims must be at least 1 (a shape space of no dimensions is the canonical alone)");
+            }
+            check_cmd::check_first(&category_dir, skip_checks, canonical.is_some())?;
+            shape_cmd::run(&category_dir, canonical.as_deref(), dims, &params, &out)
+        })(),
         Command::Cpd {
             source,
             target,
             cpd,
             out,
         } => {
-            cpd_cmd::run(&source, &target, &cpd.params(), &out).map(|r| {
+            cpd.params().and_then(|params| cpd_cmd::run(&source, &target, &params, &out)).map(|r| {
                 println!(
                     "{} iterations ({}) in {:.3} s; final sigma^2 {:.3e}; wrote {4}/deformed.npy, {4}/W.npy, {4}/log.json",
                     r.iterations,
@@ -404,9 +429,55 @@ fn main() {
         }
     };
     if let Err(e) = result {
-        eprintln!("error: {e:#}");
+        if let Some(dir) = created {
+            out::release(&dir);
+        }
+        eprintln!("error: {}", report(&e));
         std::process::exit(1);
     }
+}
+
+/// Claims the command's --out before any work (see `out`); returns the output folder
+/// when the claim created it.
+fn claim_out(command: &Command, force: bool) -> Result<Option<PathBuf>> {
+    let dir = match command {
+        Command::Info => return Ok(None),
+        Command::ShapeSpace { out, .. } => {
+            out::claim_file(out, force)?;
+            return Ok(None);
+        }
+        Command::Demo { out } => {
+            let created = out::claim_dir(out, force, Some(out::DEMO_MARK))?;
+            return Ok(created.then(|| out.clone()));
+        }
+        Command::CheckDataset { out, .. }
+        | Command::Bench { out, .. }
+        | Command::GenDataset { out, .. }
+        | Command::Cpd { out, .. } => out,
+        Command::Render(RenderArgs { out, .. })
+        | Command::Grad(GradArgs { out, .. })
+        | Command::Eval(EvalArgs { out, .. }) => out,
+        Command::BenchRegister(args) => &args.out,
+        Command::Register(args) => args.out(),
+    };
+    let created = out::claim_dir(dir, force, None)?;
+    Ok(created.then(|| dir.to_path_buf()))
+}
+
+/// The error and its causes in one line, each cause once (a cause whose text the message
+/// already holds, as an I/O error that names its file, is not repeated).
+fn report(e: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in e.chain() {
+        let said = cause.to_string();
+        if !text.contains(&said) {
+            if !text.is_empty() {
+                text.push_str(": ");
+            }
+            text.push_str(&said);
+        }
+    }
+    text
 }
 
 fn info() -> Result<()> {
@@ -636,8 +707,14 @@ fn eval_command(args: &EvalArgs) -> Result<()> {
     if args.dims == 0 {
         bail!("--dims must be at least 1");
     }
+    if !(2..=1000).contains(&args.trials) {
+        bail!(
+            "--trials must be 2 to 1000 (a spread needs two), not {}",
+            args.trials
+        );
+    }
     let mut settings = vkdr::eval::EvalSettings {
-        trials: args.trials.max(2),
+        trials: args.trials,
         seed: args.seed,
         dims: args.dims,
         ..Default::default()
@@ -653,9 +730,9 @@ fn eval_command(args: &EvalArgs) -> Result<()> {
     if args.depth {
         settings.depth = Some(args.depth_loss.loss()?);
     }
-    if !(args.depth_noise.is_finite() && args.depth_noise >= 0.0) {
+    if !(args.depth_noise.is_finite() && (0.0..=1.0).contains(&args.depth_noise)) {
         bail!(
-            "--depth-noise must be a standard deviation in metres, >= 0, not {}",
+            "--depth-noise must be a standard deviation in metres, 0 to 1, not {}",
             args.depth_noise
         );
     }
@@ -675,6 +752,7 @@ fn eval_command(args: &EvalArgs) -> Result<()> {
         params.latent_step = args.latent_step;
         params.optimizer = optimizer.unwrap_or(params.optimizer);
         params.loss = loss.unwrap_or(params.loss);
+        params.validate()?;
     }
     eval(
         &args.dataset,
@@ -696,17 +774,48 @@ fn eval(
     let device = format!("{} ({})", ctx.info().name, ctx.info().driver_info);
     let only: Option<Vec<String>> =
         categories.map(|c| c.split(',').map(|s| s.trim().to_string()).collect());
-    let rows = eval_cmd::eval(&ctx, dataset, &settings, only.as_deref(), skip_checks)?;
-    eval_cmd::write_reports(out, &rows, &settings, &device)?;
-    print!("{}", std::fs::read_to_string(out.join("table.md"))?);
-    println!(
-        "wrote {0}/table.md, table.csv, table.json, trials.csv, speed_vs_error.png",
-        out.display()
-    );
+    let (rows, failures) = eval_cmd::eval(
+        &ctx,
+        dataset,
+        &settings,
+        only.as_deref(),
+        skip_checks,
+        |rows| eval_cmd::write_reports(out, rows, &settings, &device),
+    )?;
+    if !rows.is_empty() {
+        print!("{}", std::fs::read_to_string(out.join("table.md"))?);
+        println!(
+            "wrote {0}/table.md, table.csv, table.json, trials.csv, speed_vs_error.png",
+            out.display()
+        );
+    }
+    if !failures.is_empty() {
+        bail!(
+            "{} of the categories failed{}:\n  {}",
+            failures.len(),
+            if rows.is_empty() {
+                String::new()
+            } else {
+                format!(" (the others' tables are in {})", out.display())
+            },
+            failures.join("\n  ")
+        );
+    }
     Ok(())
 }
 
-fn gen_dataset(out: &Path, seed: u64, train: usize, test: usize) -> Result<()> {
+fn gen_dataset(out: &Path, seed: u64, train: usize, test: usize, force: bool) -> Result<()> {
+    if force {
+        // A dataset written over with fewer meshes must not keep the old ones beside the
+        // new info.json: each generated category's folder is replaced whole.
+        for category in vkdr::dataset::CATEGORIES {
+            let dir = out.join(category);
+            if dir.is_dir() {
+                std::fs::remove_dir_all(&dir)
+                    .with_context(|| format!("replacing {}", dir.display()))?;
+            }
+        }
+    }
     let dirs = vkdr::dataset::generate(out, seed, train, test, |category, done, total| {
         eprint!("\r  {category:<14} {done:>3}/{total}");
         if done == total {
@@ -722,6 +831,10 @@ fn gen_dataset(out: &Path, seed: u64, train: usize, test: usize) -> Result<()> {
 fn demo(out: &Path) -> Result<()> {
     let started = Instant::now();
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    vkdr::io::write_atomically(
+        &out.join(out::DEMO_MARK),
+        b"Written by `vkdr demo`: a later demo writes over this folder without --force.\n",
+    )?;
     let ctx = Context::new()?;
     println!("device: {} ({})", ctx.info().name, ctx.info().driver_info);
 

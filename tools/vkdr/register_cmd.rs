@@ -70,6 +70,13 @@ pub struct Args {
     out: PathBuf,
 }
 
+impl Args {
+    /// The output folder.
+    pub fn out(&self) -> &Path {
+        &self.out
+    }
+}
+
 /// A camera after the first, as the views file gives it.
 struct FurtherView {
     other: OtherView,
