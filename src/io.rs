@@ -1,9 +1,53 @@
 //! File output that never leaves a half-written file: write to a temporary file beside
-//! the target, then rename. Also `.npy` and PNG helpers used by the command line.
+//! the target, then rename. Also `.npy` and PNG helpers used by the command line, and
+//! point sets read from OBJ or `.npy` files.
 
 use std::path::Path;
 
+use glam::DVec3;
+
 use crate::error::{Error, Result};
+use crate::Mesh;
+
+/// Points of an OBJ file (its vertices) or of an N x 3 `.npy` (float32 or float64).
+pub fn load_points(path: &Path) -> Result<Vec<DVec3>> {
+    let is_npy = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("npy"));
+    if !is_npy {
+        return Ok(Mesh::load_obj(path)?.points());
+    }
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    points_from_npy(&path.display().to_string(), &bytes)
+}
+
+/// Points of an N x 3 `.npy` (float32 or float64) held in `bytes`; `name` is used in
+/// errors. The header is checked against the data before anything is allocated.
+pub fn points_from_npy(name: &str, bytes: &[u8]) -> Result<Vec<DVec3>> {
+    use ndarray_npy::ReadNpyExt;
+    check_npy_size(name, bytes)?;
+    let array = match ndarray::Array2::<f64>::read_npy(bytes) {
+        Ok(a) => a,
+        Err(_) => ndarray::Array2::<f32>::read_npy(bytes)
+            .map_err(|e| {
+                Error::InvalidInput(format!(
+                    "{name}: expected an N x 3 float32 or float64 array ({e})"
+                ))
+            })?
+            .mapv(|v| v as f64),
+    };
+    if array.ncols() != 3 {
+        return Err(Error::InvalidInput(format!(
+            "{name}: expected N x 3 points, got {:?}",
+            array.shape()
+        )));
+    }
+    Ok(array
+        .rows()
+        .into_iter()
+        .map(|r| DVec3::new(r[0], r[1], r[2]))
+        .collect())
+}
 
 /// Writes `bytes` to `path` atomically (temporary file + rename).
 pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<()> {

@@ -2,54 +2,17 @@
 
 use std::path::Path;
 
-use anyhow::{bail, Context as _, Result};
+use anyhow::{Context as _, Result};
 use glam::DVec3;
 use ndarray::Array2;
 
 use vkdr::cpd::{self, CpdParams, CpdPipelines, CpdResult};
 use vkdr::gpu::Context;
 use vkdr::io::{write_atomically, write_npy};
-use vkdr::Mesh;
-
-/// Points of an OBJ file (its vertices) or of an N x 3 .npy (float32 or float64).
-pub fn load_points(path: &Path) -> Result<Vec<DVec3>> {
-    let is_npy = path
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("npy"));
-    if !is_npy {
-        return Ok(Mesh::load_obj(path)?.points());
-    }
-    use ndarray_npy::ReadNpyExt;
-    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    vkdr::io::check_npy_size(&path.display().to_string(), &bytes)?;
-    let array: Array2<f64> = match Array2::<f64>::read_npy(&bytes[..]) {
-        Ok(a) => a,
-        Err(_) => Array2::<f32>::read_npy(&bytes[..])
-            .with_context(|| {
-                format!(
-                    "{}: expected an N x 3 float32 or float64 array",
-                    path.display()
-                )
-            })?
-            .mapv(|v| v as f64),
-    };
-    if array.ncols() != 3 {
-        bail!(
-            "{}: expected N x 3 points, got {:?}",
-            path.display(),
-            array.shape()
-        );
-    }
-    Ok(array
-        .rows()
-        .into_iter()
-        .map(|r| DVec3::new(r[0], r[1], r[2]))
-        .collect())
-}
 
 pub fn run(source: &Path, target: &Path, params: &CpdParams, out: &Path) -> Result<CpdResult> {
-    let y = load_points(source)?;
-    let x = load_points(target)?;
+    let y = vkdr::io::load_points(source)?;
+    let x = vkdr::io::load_points(target)?;
     let ctx = Context::new()?;
     let pipelines = CpdPipelines::new(&ctx)?;
     eprintln!(
