@@ -245,7 +245,7 @@ pub fn surface_sample(mesh: &Mesh, n: usize, seed: u64) -> Vec<DVec3> {
                 .partition_point(|&c| c < r)
                 .min(cumulative.len() - 1);
             let [a, b, c] = mesh.triangles()[k].map(|i| p[i as usize]);
-            let (mut u, mut v) = (rng.next(), rng.next());
+            let (mut u, mut v) = (rng.uniform(), rng.uniform());
             if u + v > 1.0 {
                 (u, v) = (1.0 - u, 1.0 - v);
             }
@@ -362,8 +362,8 @@ fn view_offsets(rng: &mut Rng, views: usize) -> Vec<f64> {
 
 /// A standard normal draw (Box-Muller).
 fn gaussian(rng: &mut Rng) -> f64 {
-    let u = rng.next().max(f64::MIN_POSITIVE);
-    (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * rng.next()).cos()
+    let u = rng.uniform().max(f64::MIN_POSITIVE);
+    (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * rng.uniform()).cos()
 }
 
 impl Default for EvalSettings {
@@ -629,7 +629,7 @@ pub fn render_mask(
         .collect())
 }
 
-/// The Lambert shading of `mesh` rendered through `views` ([view][row][column], background
+/// The Lambert shading of `mesh` rendered through `views` (`[view][row][column]`, background
 /// 0, antialiased as the registration renders its own).
 pub fn render_shading(
     ctx: &Context,
@@ -667,6 +667,7 @@ pub fn placed_like(vertices: &[DVec3], reference: &[DVec3]) -> Vec<DVec3> {
 }
 
 /// Evaluates one test instance against a built shape space.
+#[allow(clippy::too_many_arguments)] // the instance, its category's context, and progress
 pub fn evaluate_instance(
     ctx: &Context,
     registrar: &Registrar,

@@ -262,7 +262,7 @@ impl Mesh {
         }
         if profile
             .iter()
-            .any(|&(r, y)| !(r > 0.0) || !r.is_finite() || !y.is_finite())
+            .any(|&(r, y)| !r.is_finite() || r <= 0.0 || !y.is_finite())
         {
             return Err(Error::InvalidInput(
                 "lathe radii must be finite and > 0".into(),

@@ -15,7 +15,7 @@
 //! misses, E = G - F F^T, is positive semi-definite, so the relative error of that
 //! solution (in the A-norm) is at most trace(S^-1/2 E S^-1/2) = sum_i E_ii d_i / s, known
 //! exactly on the host. A wide kernel's spectrum decays fast: at the default beta = 2 the
-//! bound stays below [`NYSTROM_EXACT`] and that solution is the M-step, with no kernel
+//! bound stays below `NYSTROM_EXACT` and that solution is the M-step, with no kernel
 //! product at all (it matches a dense float64 solve to 1e-7; `tests/cpd.rs`).
 //!
 //! Otherwise (a narrow kernel) conjugate gradients refine it, three columns side by side,
@@ -81,7 +81,7 @@ pub struct Solved {
     pub products: usize,
     /// Every column reached [`TOLERANCE`] (always true for the low-rank option).
     pub converged: bool,
-    /// The Nystrom solution was kept although its bound is above [`NYSTROM_EXACT`]: the
+    /// The Nystrom solution was kept although its bound is above `NYSTROM_EXACT`: the
     /// device's float32 products are too coarse for this system to refine it.
     pub limited: bool,
 }

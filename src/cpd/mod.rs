@@ -6,7 +6,7 @@
 //! per target point accumulates a log-sum-exp denominator, one pass per source point the
 //! sums (`glsl/cpd_*.comp`). The M-step ([`m_step`]) solves for W by preconditioned
 //! conjugate gradients whose products G V run on the device (`glsl/gauss_product.comp`),
-//! never forming G either: one path from ten points to 1e5. [`reference`] runs the same
+//! never forming G either: one path from ten points to 1e5. [`reference`](mod@reference) runs the same
 //! algorithm with a float64 E-step and kernel products.
 //!
 //! The iterations stop on the objective (negative log-likelihood plus the smoothness

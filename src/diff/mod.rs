@@ -11,7 +11,7 @@
 //! from the data, or a reduction in a fixed order (`glsl/include/fixed_point.glsl`), so the
 //! same inputs give bit-identical results on the same device, run after run.
 //!
-//! [`reference`] is the float64 model the tests differentiate by central differences.
+//! [`reference`](mod@reference) is the float64 model the tests differentiate by central differences.
 
 pub mod reference;
 
@@ -257,7 +257,7 @@ impl DepthLoss {
 }
 
 /// An observed depth image of every view, compared with the rendered camera-space depth
-/// besides the mask (or shading): [view][row][column] in metres, 0 where nothing was
+/// besides the mask (or shading): `[view][row][column]` in metres, 0 where nothing was
 /// measured. Depth is compared inside the rendered silhouette only and is not
 /// antialiased; the silhouette's own gradient comes from the mask term.
 #[derive(Clone, Copy, Debug)]
@@ -452,10 +452,10 @@ pub struct SceneDesc<'a> {
     pub mesh: &'a Mesh,
     pub views: &'a [View],
     pub loss: Loss,
-    /// Observed images, [view][row][column][channel] with `channels` = attribute channels
+    /// Observed images, `[view][row][column][channel]` with `channels` = attribute channels
     /// (1 for a mask: nonzero = object).
     pub observed: &'a [f32],
-    /// Per-vertex attributes to interpolate ([vertex][channel], 1 to 4 channels, the same
+    /// Per-vertex attributes to interpolate (`[vertex][channel]`, 1 to 4 channels, the same
     /// for every view), or `None` to compare antialiased coverage with a mask.
     pub attributes: Option<(&'a [f32], u32)>,
     /// Compare Lambert shading (one channel, computed on the device for every view)
@@ -473,7 +473,7 @@ pub struct Scene {
     views: ViewBuffers,
     gbuffer: Gbuffer,
     neighbours: Buffer,
-    /// [view][vertex][channel]
+    /// `[view][vertex][channel]`
     attributes: Buffer,
     /// With shading: the incident triangles of every vertex, dL/d(normal) scratch, the
     /// unit light.
@@ -511,7 +511,7 @@ pub struct Scene {
     subgroups: u32,
     ids: Buffer,
     /// Each listed pixel's pairs with its right and lower neighbours, one word each
-    /// (`encode_pair` in `glsl/include/diff.glsl`), [view][y][x].
+    /// (`encode_pair` in `glsl/include/diff.glsl`), `[view][y][x]`.
     pairs_x: Buffer,
     pairs_y: Buffer,
     loss: Loss,
@@ -531,15 +531,15 @@ pub struct Evaluation {
     /// dL/d(object-space vertex position), summed over views, in the mesh's vertex order.
     pub vertex_gradient: Vec<[f32; 3]>,
     /// Per view: dL/dt (camera frame) then dL/dd for a rotation increment d applied on the
-    /// left, x_camera = exp([d]x) R x + t.
+    /// left, `x_camera = exp([d]x) R x + t`.
     pub pose_gradient: Vec<[f32; 6]>,
-    /// dL/d(attribute), [vertex][channel], summed over views (empty without attributes;
+    /// dL/d(attribute), `[vertex][channel]`, summed over views (empty without attributes;
     /// with shading, dL/d(shade)).
     pub attribute_gradient: Vec<f32>,
-    /// The antialiased compared image, [view][row][column][channel] (with depth, the last
+    /// The antialiased compared image, `[view][row][column][channel]` (with depth, the last
     /// channel is the rendered depth at each covered pixel centre, not antialiased).
     pub antialiased: Vec<f32>,
-    /// Triangle id + 1 per pixel, [view][row][column].
+    /// Triangle id + 1 per pixel, `[view][row][column]`.
     pub ids: Vec<u32>,
 }
 
@@ -1285,7 +1285,7 @@ impl Scene {
         })
     }
 
-    /// The signed distance field of the observation, [view][row][column] (distance loss
+    /// The signed distance field of the observation, `[view][row][column]` (distance loss
     /// only; after a submission that included [`Scene::record_prepare`]).
     pub fn read_distance_field(&mut self) -> Result<Vec<f32>> {
         if self.loss != Loss::Distance {

@@ -22,18 +22,18 @@ pub struct Problem<'a> {
     /// As [`super::neighbours`].
     pub neighbours: &'a [u32],
     pub cameras: &'a [Camera],
-    /// Triangle id + 1 per pixel, [view][row][column] (from the device).
+    /// Triangle id + 1 per pixel, `[view][row][column]` (from the device).
     pub ids: &'a [u32],
-    /// Observed images, [view][row][column][channel].
+    /// Observed images, `[view][row][column][channel]`.
     pub observed: &'a [f64],
-    /// Signed distance fields, [view][row][column] (only read by [`Loss::Distance`]).
+    /// Signed distance fields, `[view][row][column]` (only read by [`Loss::Distance`]).
     pub distance: &'a [f64],
     /// Per-vertex attributes and their channel count, or `None` for coverage.
     pub attributes: Option<(&'a [f64], usize)>,
     /// Lambert shading instead of attributes (one channel).
     pub shading: Option<Shading>,
     pub loss: Loss,
-    /// Observed depth, [view][row][column] (0: not measured), and how it is compared.
+    /// Observed depth, `[view][row][column]` (0: not measured), and how it is compared.
     pub depth: Option<(&'a [f64], DepthLoss)>,
 }
 
@@ -57,7 +57,7 @@ pub struct Output {
     pub loss: f64,
     /// Loss of each view.
     pub view_losses: Vec<f64>,
-    /// Antialiased images, [view][row][column][channel] (with depth, a last channel: the
+    /// Antialiased images, `[view][row][column][channel]` (with depth, a last channel: the
     /// depth at covered pixel centres, 0 elsewhere).
     pub antialiased: Vec<f64>,
 }

@@ -2,7 +2,7 @@
 //! error (of antialiased coverage, or of interpolated colour), soft IoU, and a
 //! signed-distance loss whose gradient reaches beyond the silhouette. The signed distance
 //! field of an observed mask is computed on the device by jump flooding.
-//! [`reference`] holds the float64 versions used by tests.
+//! [`reference`](mod@reference) holds the float64 versions used by tests.
 
 pub mod reference;
 
@@ -168,7 +168,7 @@ pub fn load_depth(path: &Path, width: u32, height: u32) -> Result<Vec<f32>> {
 }
 
 /// Loads an observed shading image (grey, or colour taken as its luminance) of the given
-/// size as values in [0, 1], [row][column], set to 0 (the background's shade) wherever
+/// size as values in [0, 1], `[row][column]`, set to 0 (the background's shade) wherever
 /// `mask` is 0.
 pub fn load_shading(path: &Path, mask: &[f32], width: u32, height: u32) -> Result<Vec<f32>> {
     Ok(open_image(path, "shading image", width, height)?
@@ -219,7 +219,7 @@ impl DistanceField {
     }
 
     /// Records the signed distance field of `views` masks of `width` x `height` (float,
-    /// [view][y][x], nonzero = object) into `distance`, using two scratch buffers of
+    /// `[view][y][x]`, nonzero = object) into `distance`, using two scratch buffers of
     /// `scratch_bytes` each.
     pub fn record(
         &self,

@@ -1,7 +1,7 @@
 //! The forward rasterizer: a Vulkan graphics pipeline that writes the G-buffer (triangle
 //! id + 1, perspective-correct barycentrics, optionally camera-space depth) for several
 //! views of one mesh, plus a plain Lambert-shaded colour render for pictures and as the
-//! benchmark baseline. [`reference`] is the CPU float64 rasterizer the tests compare to.
+//! benchmark baseline. [`reference`](mod@reference) is the CPU float64 rasterizer the tests compare to.
 
 pub mod reference;
 

@@ -156,12 +156,15 @@ impl RegisterParams {
                 "rotation step {} must be in (0, 1] rad",
                 crate::error::show(self.rotation_step)
             ))
-        } else if !(0.0..1.0).contains(&self.momentum) || !(self.decay > 0.0 && self.decay <= 1.0) {
+        } else if !(0.0..1.0).contains(&self.momentum)
+            || !(0.0..=1.0).contains(&self.decay)
+            || self.decay == 0.0
+        {
             Some(format!(
                 "momentum {} must be in [0, 1) and decay {} in (0, 1]",
                 self.momentum, self.decay
             ))
-        } else if !(self.plateau >= 0.0 && self.plateau < 1.0) {
+        } else if !(0.0..1.0).contains(&self.plateau) {
             Some(format!("plateau {} must be in [0, 1)", self.plateau))
         } else {
             None
@@ -635,13 +638,13 @@ pub struct OtherView {
     pub from_first: Pose,
 }
 
-/// One registration to run: a shape space, an observed mask ([row][column], nonzero =
-/// object), optionally the observed shading (grey, [row][column], background 0; compared
+/// One registration to run: a shape space, an observed mask (`[row][column]`, nonzero =
+/// object), optionally the observed shading (grey, `[row][column]`, background 0; compared
 /// when `RegisterParams::shading` is set) and depth (metres, 0 = not measured; compared
 /// when `RegisterParams::depth` is set), and the view it was seen through (its pose is
 /// the initial pose). With `others`, the object is seen by several cameras at once: one
 /// code and one object pose explain every view, and each image holds every view's,
-/// [view][row][column], the first view first.
+/// `[view][row][column]`, the first view first.
 #[derive(Clone, Copy)]
 pub struct Job<'a> {
     pub space: &'a ShapeSpace,
