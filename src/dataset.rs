@@ -9,7 +9,6 @@ use std::path::Path;
 use glam::{DMat3, DVec3};
 
 use crate::error::{Error, Result};
-use crate::io::write_atomically;
 use crate::mesh::Mesh;
 
 pub const CATEGORIES: [&str; 4] = ["bottle", "mug", "spray_bottle", "drill"];
@@ -283,10 +282,16 @@ pub fn generate(
                 .save_obj(dir.join("test").join(format!("{category}_test_{i:02}.obj")))?;
             progress(category, 2 + train + i, total);
         }
-        let info = format!(
-            "{{\"category\": \"{category}\", \"up_axis\": \"y\", \"units\": \"m\", \"seed\": {seed}, \"train\": {train}, \"test\": {test}, \"generator\": \"vkdr gen-dataset\"}}\n"
-        );
-        write_atomically(&dir.join("info.json"), info.as_bytes())?;
+        let info = serde_json::json!({
+            "category": category,
+            "up_axis": "y",
+            "units": "m",
+            "seed": seed,
+            "train": train,
+            "test": test,
+            "generator": "vkdr gen-dataset",
+        });
+        crate::io::write_json(&dir.join("info.json"), &info)?;
         dirs.push(dir);
     }
     Ok(dirs)

@@ -49,6 +49,14 @@ pub fn points_from_npy(name: &str, bytes: &[u8]) -> Result<Vec<DVec3>> {
         .collect())
 }
 
+/// Writes `value` as strict JSON (indented; a non-finite number is `null`, as
+/// `serde_json::json!` makes it) to `path` atomically.
+pub fn write_json(path: &Path, value: &serde_json::Value) -> Result<()> {
+    let text = serde_json::to_string_pretty(value)
+        .map_err(|e| Error::InvalidInput(format!("{}: {e}", path.display())))?;
+    write_atomically(path, (text + "\n").as_bytes())
+}
+
 /// Writes `bytes` to `path` atomically (temporary file + rename).
 pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
     let file_name = path

@@ -21,7 +21,7 @@ use crate::mesh::Mesh;
 pub const FORMAT_VERSION: u32 = 1;
 
 /// A category's latent shape space.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct ShapeSpace {
     pub canonical: Mesh,
     /// Kernel width in the data's units (the CPD beta times the canonical's RMS radius).
@@ -322,28 +322,32 @@ impl ShapeSpace {
             npz.finish().map_err(npz_err)?;
         }
         write_atomically(path, &bytes)?;
-        let names: Vec<String> = self
-            .training_names
-            .iter()
-            .map(|n| format!("{n:?}"))
-            .collect();
-        let json = format!(
-            "{{\n  \"format_version\": {FORMAT_VERSION},\n  \"category\": {:?},\n  \"vertices\": {m},\n  \"faces\": {},\n  \"dims\": {k},\n  \"training_instances\": {t},\n  \"training_names\": [{}],\n  \"beta\": {},\n  \"explained_variance\": {:?},\n  \"arrays\": \"{}\"\n}}\n",
-            self.category,
-            self.canonical.triangle_count(),
-            names.join(", "),
-            self.beta,
-            self.explained_variance,
-            path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()
-        );
+        let json = serde_json::json!({
+            "format_version": FORMAT_VERSION,
+            "category": self.category,
+            "vertices": m,
+            "faces": self.canonical.triangle_count(),
+            "dims": k,
+            "training_instances": t,
+            "training_names": self.training_names,
+            "beta": self.beta,
+            "explained_variance": self.explained_variance,
+            "arrays": path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default(),
+        });
+        let json = serde_json::to_string_pretty(&json)
+            .map_err(|e| Error::InvalidInput(e.to_string()))?
+            + "\n";
         write_atomically(&description_path(path), json.as_bytes())
     }
 
     /// Loads and checks a saved space.
     pub fn load(path: &Path) -> Result<Self> {
         let description = description_path(path);
-        let json = std::fs::read_to_string(&description).map_err(|e| Error::io(&description, e))?;
-        let version = json_number(&json, "format_version")
+        let text = std::fs::read_to_string(&description).map_err(|e| Error::io(&description, e))?;
+        let json: serde_json::Value = serde_json::from_str(&text)
+            .map_err(|e| Error::format(&description, format!("not JSON: {e}")))?;
+        let version = json["format_version"]
+            .as_f64()
             .ok_or_else(|| Error::format(&description, "no format_version"))?;
         if version != FORMAT_VERSION as f64 {
             return Err(Error::format(
@@ -392,7 +396,7 @@ impl ShapeSpace {
             return Err(bad("array shapes do not fit together"));
         }
         for (key, expected) in [("vertices", m), ("dims", k), ("faces", faces.nrows())] {
-            if json_number(&json, key) != Some(expected as f64) {
+            if json[key].as_u64() != Some(expected as u64) {
                 return Err(Error::format(
                     &description,
                     format!("\"{key}\" does not match {}", path.display()),
@@ -406,6 +410,21 @@ impl ShapeSpace {
         {
             return Err(bad("non-finite values"));
         }
+        // The names, one per training code (absent in files written before they were
+        // kept: then none).
+        let training_names: Vec<String> = match json.get("training_names") {
+            None => Vec::new(),
+            Some(names) => names
+                .as_array()
+                .and_then(|a| a.iter().map(|n| n.as_str().map(String::from)).collect())
+                .filter(|n: &Vec<String>| n.len() == codes.nrows())
+                .ok_or_else(|| {
+                    Error::format(
+                        &description,
+                        format!("\"training_names\" is not {} strings", codes.nrows()),
+                    )
+                })?,
+        };
         let positions = vertices
             .rows()
             .into_iter()
@@ -429,8 +448,8 @@ impl ShapeSpace {
             explained_variance,
             offset: offset.iter().copied().collect(),
             deformation_basis: rows(&deformation),
-            category: json_string(&json, "category").unwrap_or_default(),
-            training_names: Vec::new(),
+            category: json["category"].as_str().unwrap_or_default().to_string(),
+            training_names,
         })
     }
 }
@@ -452,29 +471,6 @@ fn description_path(path: &Path) -> PathBuf {
     let mut name = path.as_os_str().to_owned();
     name.push(".json");
     PathBuf::from(name)
-}
-
-/// The number after `"key":` in a flat JSON object (our own files only).
-fn json_number(json: &str, key: &str) -> Option<f64> {
-    let at = json.find(&format!("\"{key}\""))?;
-    let rest = json[at + key.len() + 2..]
-        .trim_start()
-        .strip_prefix(':')?
-        .trim_start();
-    let end = rest
-        .find(|c: char| !(c.is_ascii_digit() || "+-.eE".contains(c)))
-        .unwrap_or(rest.len());
-    rest[..end].parse().ok()
-}
-
-fn json_string(json: &str, key: &str) -> Option<String> {
-    let at = json.find(&format!("\"{key}\""))?;
-    let rest = json[at + key.len() + 2..]
-        .trim_start()
-        .strip_prefix(':')?
-        .trim_start()
-        .strip_prefix('"')?;
-    Some(rest[..rest.find('"')?].to_string())
 }
 
 /// A shape space of `dims` dimensions over an 8-segment bottle from `instances` random

@@ -385,7 +385,7 @@ fn bad_input_is_an_error() {
                 w: 0.0,
                 ..CpdParams::default()
             },
-            "0 < w < 1",
+            "w 0 must be in (0, 1)",
         ),
         (
             &ok,
@@ -394,7 +394,7 @@ fn bad_input_is_an_error() {
                 beta: -1.0,
                 ..CpdParams::default()
             },
-            "beta > 0",
+            "beta -1 must be in [1e-6, 1e6]",
         ),
     ] {
         let err = cpd::register(&ctx, &pipelines, source, target, &params, &mut |_, _| {})

@@ -102,8 +102,14 @@ fn round_trips_through_its_file_and_refuses_corrupt_ones() {
     let path = dir.join("bottle.npz");
     space.save(&path).unwrap();
     let loaded = ShapeSpace::load(&path).unwrap();
-    assert_eq!(loaded.dims(), space.dims());
-    assert_eq!(loaded.canonical.triangles(), space.canonical.triangles());
+    // Every field comes back exactly: arrays, names, category.
+    assert_eq!(loaded, space);
+    assert_eq!(loaded.training_names.len(), 3);
+    // The description is strict JSON.
+    let description: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("bottle.npz.json")).unwrap())
+            .unwrap();
+    assert_eq!(description["training_names"].as_array().unwrap().len(), 3);
     let code = vec![0.3; space.dims()];
     let (a, b) = (
         space.vertices(&code).unwrap(),

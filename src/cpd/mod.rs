@@ -580,14 +580,14 @@ fn check_points(points: &[DVec3], what: &str) -> Result<()> {
             points[i]
         )));
     }
-    // Every point the same (or all within float64 rounding of one): no size to normalise
-    // by, no shape to register.
+    // Several points, every one the same (or all within float64 rounding of one): no size
+    // to normalise by, no shape to register. (One point alone is a legitimate tiny set.)
     let first = points[0];
     let spread = points
         .iter()
         .map(|p| (*p - first).abs().max_element())
         .fold(0.0, f64::max);
-    if spread <= 1e-12 * first.abs().max_element().max(1e-300) {
+    if points.len() > 1 && spread <= 1e-12 * first.abs().max_element().max(1e-300) {
         return Err(Error::InvalidInput(format!(
             "the {what} points are all the same point {first:?}: CPD needs a shape"
         )));

@@ -282,20 +282,30 @@ pub fn write(out: &Path, rows: &[Row], (width, height): (u32, u32), device: &str
             r.dtz_error,
             r.stretch_error
         ));
-        let passes = r
+        let passes: serde_json::Map<String, serde_json::Value> = r
             .passes
             .iter()
-            .map(|(name, ms)| format!("{name:?}: {ms:.4}"))
-            .collect::<Vec<_>>()
-            .join(", ");
-        json.push(format!(
-            "  {{\"vertices\": {}, \"faces\": {}, \"width\": {width}, \"height\": {height}, \"forward_ms\": {:.4}, \"backward_ms\": {:.4}, \"plain_ms\": {:.4}, \"wall_ms\": {:.4}, \"plain_wall_ms\": {:.4}, \"dtz_error\": {:.5}, \"stretch_error\": {:.5}, \"device\": {:?}, \"pass_ms\": {{{passes}}}}}",
-            r.vertices, r.faces, r.forward_ms, r.backward_ms, r.plain_ms, r.wall_ms, r.plain_wall_ms, r.dtz_error, r.stretch_error, device
-        ));
+            .map(|(name, ms)| (name.to_string(), serde_json::json!(ms)))
+            .collect();
+        json.push(serde_json::json!({
+            "vertices": r.vertices,
+            "faces": r.faces,
+            "width": width,
+            "height": height,
+            "forward_ms": r.forward_ms,
+            "backward_ms": r.backward_ms,
+            "plain_ms": r.plain_ms,
+            "wall_ms": r.wall_ms,
+            "plain_wall_ms": r.plain_wall_ms,
+            "dtz_error": r.dtz_error,
+            "stretch_error": r.stretch_error,
+            "device": device,
+            "pass_ms": passes,
+        }));
     }
     vkdr::io::write_atomically(&out.join("bench.csv"), csv.as_bytes()).context("bench.csv")?;
-    let json = format!("[\n{}\n]\n", json.join(",\n"));
-    vkdr::io::write_atomically(&out.join("bench.json"), json.as_bytes()).context("bench.json")?;
+    vkdr::io::write_json(&out.join("bench.json"), &serde_json::Value::Array(json))
+        .context("bench.json")?;
 
     let series = |f: &dyn Fn(&Row) -> f64| rows.iter().map(|r| (r.vertices as f64, f(r))).collect();
     let name = device.split(" (").next().unwrap_or(device);

@@ -339,32 +339,35 @@ pub fn run(ctx: &Context, args: &Args) -> Result<()> {
     );
     print!("{summary}");
     write_atomically(&args.out.join("bench_register.md"), summary.as_bytes())?;
-    let json = format!(
-        "{{\"device\": {device:?}, \"category\": {:?}, \"shading\": {}, \"depth\": {}, \"views\": {}, \"vertices\": {m}, \"width\": {}, \"height\": {}, \"iterations\": {}, \
-         \"wall_ms\": {walls:?}, \"wall_ms_median\": {wall:.3}, \
-         \"passes_ms\": {{\"deform\": {:.4}, \"forward\": {:.4}, \"backward\": {:.4}, \"update\": {:.4}, \"total\": {:.4}}}, \
-         \"batch\": {}, \"sequential_ms\": {sequential:.3}, \"batched_ms\": {batched:.3}, \"oracle_m\": {oracle:e}, \
-         \"curve\": [{}]}}\n",
-        args.category,
-        shading.is_some(),
-        args.depth,
-        args.views,
-        width,
-        height,
-        args.iterations,
-        pass.deform,
-        pass.forward,
-        pass.backward,
-        pass.update,
-        pass.total,
-        args.batch,
-        curve
+    let json = serde_json::json!({
+        "device": device,
+        "category": args.category,
+        "shading": shading.is_some(),
+        "depth": args.depth,
+        "views": args.views,
+        "vertices": m,
+        "width": width,
+        "height": height,
+        "iterations": args.iterations,
+        "wall_ms": walls,
+        "wall_ms_median": wall,
+        "passes_ms": {
+            "deform": pass.deform,
+            "forward": pass.forward,
+            "backward": pass.backward,
+            "update": pass.update,
+            "total": pass.total,
+        },
+        "batch": args.batch,
+        "sequential_ms": sequential,
+        "batched_ms": batched,
+        "oracle_m": oracle,
+        "curve": curve
             .iter()
-            .map(|(t, e)| format!("{{\"ms\": {t:.3}, \"error_m\": {e:e}}}"))
-            .collect::<Vec<_>>()
-            .join(", ")
-    );
-    write_atomically(&args.out.join("bench_register.json"), json.as_bytes())?;
+            .map(|(t, e)| serde_json::json!({ "ms": t, "error_m": e }))
+            .collect::<Vec<_>>(),
+    });
+    vkdr::io::write_json(&args.out.join("bench_register.json"), &json)?;
     let name = device.split(" (").next().unwrap_or(&device);
     let plot = Plot::new(
         &format!("registration {}x{}, {m} vertices, {name}", width, height),

@@ -8,7 +8,7 @@ use ndarray::Array2;
 
 use vkdr::cpd::{self, CpdParams, CpdPipelines, CpdResult};
 use vkdr::gpu::Context;
-use vkdr::io::{write_atomically, write_npy};
+use vkdr::io::write_npy;
 
 pub fn run(source: &Path, target: &Path, params: &CpdParams, out: &Path) -> Result<CpdResult> {
     let y = vkdr::io::load_points(source)?;
@@ -35,11 +35,19 @@ pub fn run(source: &Path, target: &Path, params: &CpdParams, out: &Path) -> Resu
     };
     write_npy(&out.join("deformed.npy"), &matrix(&result.deformed)?)?;
     write_npy(&out.join("W.npy"), &matrix(&result.w)?)?;
-    let sigma2: Vec<String> = result.sigma2.iter().map(|s| format!("{s:e}")).collect();
-    let log = format!(
-        "{{\"iterations\": {}, \"converged\": {}, \"stop\": \"{:?}\", \"seconds\": {:.6}, \"kernel_products\": {}, \"limited_m_steps\": {}, \"jumps\": {}, \"beta\": {}, \"lambda\": {}, \"w\": {}, \"sigma2\": [{}]}}\n",
-        result.iterations, result.stop.converged(), result.stop, result.seconds, result.products, result.limited, result.jumps, params.beta, params.lambda, params.w, sigma2.join(", ")
-    );
-    write_atomically(&out.join("log.json"), log.as_bytes())?;
+    let log = serde_json::json!({
+        "iterations": result.iterations,
+        "converged": result.stop.converged(),
+        "stop": format!("{:?}", result.stop),
+        "seconds": result.seconds,
+        "kernel_products": result.products,
+        "limited_m_steps": result.limited,
+        "jumps": result.jumps,
+        "beta": params.beta,
+        "lambda": params.lambda,
+        "w": params.w,
+        "sigma2": result.sigma2,
+    });
+    vkdr::io::write_json(&out.join("log.json"), &log)?;
     Ok(result)
 }

@@ -8,7 +8,7 @@ use image::{Rgb, RgbImage};
 
 use vkdr::eval::{self, EvalSettings, Row, Trial};
 use vkdr::gpu::Context;
-use vkdr::io::{write_atomically, write_npy, write_png};
+use vkdr::io::{write_atomically, write_json, write_npy, write_png};
 use vkdr::plot::{Plot, PALETTE};
 use vkdr::raster::View;
 use vkdr::register::{Job, RegisterParams, Registrar, Registration};
@@ -119,27 +119,21 @@ pub fn register(
         &ndarray::Array1::from_vec(result.code.clone()),
     )?;
     let p = result.pose;
-    let pose = format!(
-        "{{\"translation\": [{}, {}, {}], \"rotation\": [{}, {}, {}]}}\n",
-        p.translation.x, p.translation.y, p.translation.z, p.rotation.x, p.rotation.y, p.rotation.z
-    );
-    write_atomically(&out.join("pose.json"), pose.as_bytes())?;
+    write_json(
+        &out.join("pose.json"),
+        &serde_json::json!({
+            "translation": p.translation.to_array(),
+            "rotation": p.rotation.to_array(),
+        }),
+    )?;
     let per = result.milliseconds / result.iterations as f64;
-    let log: Vec<String> = result
+    let log: Vec<serde_json::Value> = result
         .losses
         .iter()
         .enumerate()
-        .map(|(i, l)| {
-            format!(
-                "  {{\"iteration\": {i}, \"loss\": {l:e}, \"ms\": {:.3}}}",
-                per * (i + 1) as f64
-            )
-        })
+        .map(|(i, l)| serde_json::json!({ "iteration": i, "loss": l, "ms": per * (i + 1) as f64 }))
         .collect();
-    write_atomically(
-        &out.join("log.json"),
-        format!("[\n{}\n]\n", log.join(",\n")).as_bytes(),
-    )?;
+    write_json(&out.join("log.json"), &serde_json::Value::Array(log))?;
     Ok(result)
 }
 
@@ -458,12 +452,13 @@ pub fn write_reports(
         if settings.from_truth { "---|---|" } else { "" },
     );
     let mut csv = String::from("category,instance,oracle,known_pose_mean,known_pose_std,pose_noise_mean,pose_noise_std,iterations,ms,oracle_chamfer,known_pose_chamfer,pose_noise_chamfer,noise_iterations,noise_ms,from_truth_mean,from_truth_std,pose_noise_placed_mean,pose_noise_placed_std,space_optimum\n");
-    let shading_json = settings.shading.map_or("null".to_string(), |s| {
-        format!(
-            "{{\"light\": [{:e}, {:e}, {:e}], \"ambient\": {:e}}}",
-            s.light[0], s.light[1], s.light[2], s.ambient
-        )
+    let shading_json = settings
+        .shading
+        .map(|s| serde_json::json!({ "light": s.light, "ambient": s.ambient }));
+    let depth_json = settings.depth.map(|d| {
+        serde_json::json!({ "scale": d.scale, "weight": d.weight, "noise": settings.depth_noise })
     });
+    let stat = |s: &eval::Stat| serde_json::json!({ "mean": s.mean, "std": s.std });
     let mut json = Vec::new();
     for r in rows {
         md.push_str(&format!(
@@ -499,22 +494,35 @@ pub fn write_reports(
             r.pose_noise_placed.std,
             r.space_optimum,
         ));
-        json.push(format!(
-            "  {{\"category\": {:?}, \"instance\": {:?}, \"observation\": {:?}, \"oracle\": {:e}, \"space_optimum\": {:e}, \"known_pose\": {{\"mean\": {:e}, \"std\": {:e}}}, \"pose_noise\": {{\"mean\": {:e}, \"std\": {:e}}}, \"iterations\": {}, \"ms\": {:.3}, \"chamfer\": {{\"oracle\": {:e}, \"known_pose\": {:e}, \"pose_noise\": {:e}}}, \"noise_iterations\": {}, \"noise_ms\": {:.3}, \"from_truth\": {}, \"pose_noise_placed\": {{\"mean\": {:e}, \"std\": {:e}}}, \"shading\": {}}}",
-            r.category, r.instance, settings.observation(), r.oracle, r.space_optimum, r.known_pose.mean, r.known_pose.std, r.pose_noise.mean, r.pose_noise.std, r.iterations, r.ms,
-            r.oracle_chamfer, r.known_pose_chamfer.mean, r.pose_noise_chamfer.mean, r.noise_iterations, r.noise_ms,
-            r.from_truth.map_or("null".to_string(), |f| format!("{{\"mean\": {:e}, \"std\": {:e}}}", f.mean, f.std)),
-            r.pose_noise_placed.mean, r.pose_noise_placed.std, shading_json
-        ));
+        json.push(serde_json::json!({
+            "category": r.category,
+            "instance": r.instance,
+            "observation": settings.observation(),
+            "views": settings.views,
+            "oracle": r.oracle,
+            "space_optimum": r.space_optimum,
+            "known_pose": stat(&r.known_pose),
+            "pose_noise": stat(&r.pose_noise),
+            "iterations": r.iterations,
+            "ms": r.ms,
+            "chamfer": {
+                "oracle": r.oracle_chamfer,
+                "known_pose": r.known_pose_chamfer.mean,
+                "pose_noise": r.pose_noise_chamfer.mean,
+            },
+            "noise_iterations": r.noise_iterations,
+            "noise_ms": r.noise_ms,
+            "from_truth": r.from_truth.as_ref().map(stat),
+            "pose_noise_placed": stat(&r.pose_noise_placed),
+            "shading": shading_json,
+            "depth": depth_json,
+        }));
     }
     md.push_str(&category_table(rows));
     write_atomically(&out.join("table.md"), md.as_bytes())?;
     write_atomically(&out.join("table.csv"), csv.as_bytes())?;
     write_atomically(&out.join("trials.csv"), trials_csv(rows).as_bytes())?;
-    write_atomically(
-        &out.join("table.json"),
-        format!("[\n{}\n]\n", json.join(",\n")).as_bytes(),
-    )?;
+    write_json(&out.join("table.json"), &serde_json::Value::Array(json))?;
 
     // Speed against error: mean error relative to the oracle after each iteration, at each
     // condition's own mean time per iteration (the pose-noise runs include the alignment).

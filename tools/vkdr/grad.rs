@@ -9,7 +9,7 @@ use image::{Rgb, RgbImage};
 
 use vkdr::diff::{DiffRenderer, Evaluation, Scene, SceneDesc};
 use vkdr::gpu::Context;
-use vkdr::io::{write_atomically, write_npy, write_png};
+use vkdr::io::{write_npy, write_png};
 use vkdr::loss::{load_mask, Loss};
 use vkdr::raster::View;
 use vkdr::Mesh;
@@ -52,9 +52,9 @@ pub fn run(
 
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let loss_value = result.loss[0];
-    write_atomically(
+    vkdr::io::write_json(
         &out.join("loss.json"),
-        format!("{{\"loss\": {loss_value:e}}}\n").as_bytes(),
+        &serde_json::json!({ "loss": loss_value }),
     )?;
     let vertex = ndarray::Array2::from_shape_vec(
         (mesh.vertex_count(), 3),
