@@ -44,6 +44,7 @@ layout(push_constant, std430) uniform Constants {
     float rotation_step;     // radians
     uint max_iterations;
     uint pose_only;      // 1: the latent code stays where it is (pose alignment)
+    float code_prior;    // weight of |z|^2 joining the loss (RegisterParams::code_prior)
 } pc;
 
 const uint ITERATION = 0u;
@@ -172,7 +173,9 @@ void direction(float g[MAX_N], out float d[MAX_N]) {
 void main() {
     uint t = uint(state[ITERATION]);
     uint count = n();
+    // The objective: the images' loss plus the code prior.
     float loss = stats[3];
+    for (uint i = 0u; i < pc.dims; ++i) loss += pc.code_prior * state[LATENT + i] * state[LATENT + i];
     if (t < pc.max_iterations) state[losses_at() + t] = loss;
 
     if (t == 0u) {
@@ -192,7 +195,8 @@ void main() {
     vec3 w = vec3(state[pose_x_at() + 3u], state[pose_x_at() + 4u], state[pose_x_at() + 5u]);
     vec3 gw = transpose(left_jacobian(w)) * vec3(grad_pose[3], grad_pose[4], grad_pose[5]);
     for (uint i = 0u; i < count; ++i) {
-        float v = i < pc.dims ? grad_latent[i] : (i < pc.dims + 3u ? grad_pose[i - pc.dims] : gw[i - pc.dims - 3u]);
+        float v = i < pc.dims ? grad_latent[i] + 2.0 * pc.code_prior * state[LATENT + i]
+            : (i < pc.dims + 3u ? grad_pose[i - pc.dims] : gw[i - pc.dims - 3u]);
         g[i] = moves(i) ? v : 0.0;
     }
 

@@ -28,6 +28,7 @@ layout(push_constant, std430) uniform Constants {
     float rotation_step;     // radians
     uint max_iterations;
     uint pose_only;      // 1: the latent code stays where it is (pose alignment)
+    float code_prior;    // weight of |z|^2 joining the loss (RegisterParams::code_prior)
 } pc;
 
 // Offsets into `state`.
@@ -53,17 +54,23 @@ mat3 rodrigues(vec3 w) {
 
 void main() {
     uint t = uint(state[ITERATION]);
-    if (t < pc.max_iterations) state[losses_at() + t] = stats[3];
+    // The objective: the images' loss plus the code prior.
+    float loss = stats[3];
+    for (uint j = 0u; j < pc.dims; ++j) loss += pc.code_prior * state[LATENT + j] * state[LATENT + j];
+    if (t < pc.max_iterations) state[losses_at() + t] = loss;
     float decay = pow(pc.decay, float(t));
     bool shape = pc.pose_only == 0u;
 
     // Latent code.
     float norm = 0.0;
-    for (uint j = 0u; j < pc.dims; ++j) norm += grad_latent[j] * grad_latent[j];
+    for (uint j = 0u; j < pc.dims; ++j) {
+        float g = grad_latent[j] + 2.0 * pc.code_prior * state[LATENT + j];
+        norm += g * g;
+    }
     norm = sqrt(norm);
     if (t == 0u) state[LR_LATENT] = norm > 0.0 ? pc.latent_step / norm : 0.0;
     for (uint j = 0u; j < pc.dims && shape; ++j) {
-        float g = grad_latent[j];
+        float g = grad_latent[j] + 2.0 * pc.code_prior * state[LATENT + j];
         float v = pc.momentum * state[velocity_at() + j] + g;
         state[velocity_at() + j] = v;
         float step = state[LR_LATENT] * decay * v;

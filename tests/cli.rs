@@ -305,6 +305,7 @@ fn bad_input_exits_non_zero_naming_the_problem_and_keeps_existing_files() {
         case(&eval(&["--views", "7"]), "--views"),
         case(&eval(&["--depth", "--depth-noise", "-1"]), "--depth-noise"),
         case(&eval(&["--dims", "0"]), "--dims"),
+        case(&eval(&["--code-prior", "-1"]), "code prior -1"),
         case(
             &["eval", "--dataset", "empty_tests", "--out", "OUT"],
             "no meshes",

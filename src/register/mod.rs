@@ -116,6 +116,13 @@ pub struct RegisterParams {
     /// Compare each job's observed depth too (the pose alignment does not); the loss
     /// must be mse. With depth the z translation is observed: set `optimize_z`.
     pub depth: Option<DepthLoss>,
+    /// Weight of a Gaussian prior on the code: `code_prior * |z|^2` joins the loss, z the
+    /// optimiser's code coordinates (for BFGS orthogonal in vertex space and one RMS
+    /// training deformation long, for SGD and Adam the training standard deviations), so
+    /// a typical training shape costs about the weight. It decides what the images leave
+    /// open, such as a shape shifted in its own frame against a shifted pose. 0 (the
+    /// default): none.
+    pub code_prior: f64,
     /// Read the loss back every this many iterations; stop when it improved by less than
     /// `plateau` (relative) over the last chunk.
     pub check_every: usize,
@@ -164,6 +171,11 @@ impl RegisterParams {
                 "momentum {} must be in [0, 1) and decay {} in (0, 1]",
                 self.momentum, self.decay
             ))
+        } else if !(0.0..=1.0).contains(&self.code_prior) {
+            Some(format!(
+                "code prior {} must be in [0, 1]",
+                crate::error::show(self.code_prior)
+            ))
         } else if !(0.0..1.0).contains(&self.plateau) {
             Some(format!("plateau {} must be in [0, 1)", self.plateau))
         } else {
@@ -201,6 +213,7 @@ impl Default for RegisterParams {
             loss: Loss::Mse,
             shading: None,
             depth: None,
+            code_prior: 0.0,
             check_every: 10,
             plateau: 1e-4,
         }
@@ -229,6 +242,7 @@ struct OptimizerConstants {
     rotation_step: f32,
     max_iterations: u32,
     pose_only: u32,
+    code_prior: f32,
 }
 
 /// Offsets of the optimiser state (mirrors `glsl/optimizer.comp` and `glsl/bfgs.comp`).
@@ -278,6 +292,7 @@ impl OptimizerConstants {
             rotation_step: params.rotation_step as f32,
             max_iterations: params.iterations as u32,
             pose_only: pose_only as u32,
+            code_prior: params.code_prior as f32,
         }
     }
 }
@@ -328,8 +343,20 @@ impl Registrar {
                 &[b; 3],
                 16,
             )?,
-            optimizer: ComputePipeline::new(ctx, "optimizer", &spirv(OPTIMIZER)?, &[b; 5], 44)?,
-            bfgs: ComputePipeline::new(ctx, "bfgs", &spirv(BFGS)?, &[b; 5], 44)?,
+            optimizer: ComputePipeline::new(
+                ctx,
+                "optimizer",
+                &spirv(OPTIMIZER)?,
+                &[b; 5],
+                std::mem::size_of::<OptimizerConstants>() as u32,
+            )?,
+            bfgs: ComputePipeline::new(
+                ctx,
+                "bfgs",
+                &spirv(BFGS)?,
+                &[b; 5],
+                std::mem::size_of::<OptimizerConstants>() as u32,
+            )?,
             rig: ComputePipeline::new(ctx, "rig", &spirv(RIG)?, &[b; 4], 8)?,
         })
     }
@@ -1169,22 +1196,30 @@ mod tests {
     /// the first code coordinate's optimum past its bound.
     #[test]
     fn bfgs_shader_matches_a_float64_reference() {
-        let inside = bfgs_case(None);
+        let inside = bfgs_case(None, 0.0);
         assert!(
             inside.capped > 0 && inside.halved > 0,
             "capped {} and halved {} steps",
             inside.capped,
             inside.halved
         );
-        let bounded = bfgs_case(Some(3.4));
+        let bounded = bfgs_case(Some(3.4), 0.0);
         assert!(bounded.held > 0, "no step held a coordinate on its bound");
         assert_eq!(bounded.accepted[0], 3.0);
+        // With a code prior the shader adds it to the loss and the gradient itself.
+        let prior = bfgs_case(None, 0.3);
+        assert!(prior.accepted[..3]
+            .iter()
+            .zip(&inside.accepted)
+            .any(|(a, b)| (a - b).abs() > 1e-2));
     }
 
     /// One run of [`bfgs_shader_matches_a_float64_reference`], with the first code
-    /// coordinate's optimum at `code_target` if given; checks every step, convergence to
-    /// the (constrained) minimum and the view, and returns the reference's final state.
-    fn bfgs_case(code_target: Option<f64>) -> BfgsReference {
+    /// coordinate's optimum at `code_target` if given and a code prior of weight `prior`
+    /// (the shader adds it; the reference sees it in the loss it is fed); checks every
+    /// step, convergence to the (constrained) minimum and the view, and returns the
+    /// reference's final state.
+    fn bfgs_case(code_target: Option<f64>, prior: f64) -> BfgsReference {
         let options = crate::gpu::ContextOptions {
             validation: true,
             ..Default::default()
@@ -1200,6 +1235,7 @@ mod tests {
             latent_step: 4.0,
             translation_step: 0.01,
             rotation_step: 0.05,
+            code_prior: prior,
             ..RegisterParams::default()
         };
         // f(x) = 0.5 (x - x*)^T Q (x - x*), Q = D (I + 0.3 R R^T) D with unit diagonal
@@ -1259,6 +1295,15 @@ mod tests {
             )
         };
 
+        // The objective the shader minimises: the fed loss plus the prior on the code.
+        let with_prior = |x: &[f64], loss: f64, mut g: Vec<f64>| -> (f64, Vec<f64>) {
+            let mut total = loss;
+            for i in 0..k {
+                total += prior * x[i] * x[i];
+                g[i] += 2.0 * prior * x[i];
+            }
+            (total, g)
+        };
         let start = Pose::new([0.01, -0.02, 0.6], [2.9, 0.3, 0.1]).unwrap();
         let camera = Camera::new(100.0, 100.0, 32.0, 32.0, 64, 64).unwrap();
         let views = ViewBuffers::new(
@@ -1327,12 +1372,14 @@ mod tests {
                 Groups::Count(1, 1, 1),
             );
             ctx.submit_and_wait(rec).unwrap();
+            let (loss, g) = with_prior(&x, loss, g);
             reference.step(loss, g);
         }
         // It converges to the constrained minimum: the projected gradient (zero where a
         // code coordinate's bound holds it, and for the fixed z) vanishes.
         let projected = |x: &[f64]| {
-            let (_, g) = evaluate(x);
+            let (loss, g) = evaluate(x);
+            let (_, g) = with_prior(x, loss, g);
             (0..n)
                 .filter(|&i| i != k + 2)
                 .filter(|&i| !(i < k && (x[i] >= 3.0 && g[i] < 0.0 || x[i] <= -3.0 && g[i] > 0.0)))

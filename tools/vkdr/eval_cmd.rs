@@ -441,7 +441,12 @@ pub fn write_reports(
         settings.elevation.0.to_degrees(), settings.elevation.1.to_degrees(), settings.trials, settings.seed, settings.dims,
         100.0 * settings.translation_noise, settings.rotation_noise.to_degrees(), eval::SAMPLE_POINTS,
         known.optimizer.name(), known.iterations, known.loss.name(), noisy.align, noisy.align_loss.name(),
-        noisy.optimizer.name(), noisy.iterations, noisy.loss.name(),
+        noisy.optimizer.name(), noisy.iterations,
+        if noisy.code_prior > 0.0 {
+            format!("{} loss, plus a code prior of weight {}", noisy.loss.name(), noisy.code_prior)
+        } else {
+            noisy.loss.name().to_string()
+        },
         settings.shading.map_or(String::new(), |s| format!(
             " Observed: the mask and grey Lambert shading (light towards {:?} in the camera frame, ambient {}); \
              the registrations compare the shading (mse) after the alignment.",
@@ -516,6 +521,7 @@ pub fn write_reports(
             "pose_noise_placed": stat(&r.pose_noise_placed),
             "shading": shading_json,
             "depth": depth_json,
+            "code_prior": noisy.code_prior,
         }));
     }
     md.push_str(&category_table(rows));

@@ -281,6 +281,10 @@ struct EvalArgs {
     /// (as with one mask).
     #[arg(long)]
     fix_z: bool,
+    /// With pose noise: weight of a Gaussian prior on the code (RegisterParams::code_prior;
+    /// with the pose known the images leave no shift of the shape open). 0: none.
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.0)]
+    code_prior: f64,
     /// Run even where `check-dataset` finds the set unusable (millimetres, no meshes, ...).
     #[arg(long)]
     skip_checks: bool,
@@ -745,6 +749,7 @@ fn eval_command(args: &EvalArgs) -> Result<()> {
     }
     settings.views = args.views;
     settings.fix_z = args.fix_z;
+    settings.pose_noise.code_prior = args.code_prior;
     let loss: Option<vkdr::loss::Loss> = args.loss.as_deref().map(str::parse).transpose()?;
     let optimizer: Option<vkdr::register::Optimizer> =
         args.optimizer.as_deref().map(str::parse).transpose()?;

@@ -66,6 +66,10 @@ pub struct Args {
     /// sgd | adam | bfgs (default: that of `vkdr eval`'s condition)
     #[arg(long)]
     optimizer: Option<String>,
+    /// Weight of a Gaussian prior on the code (0: none); with --optimize-pose it keeps the
+    /// shape from drifting against the pose where the images cannot tell them apart.
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.0)]
+    code_prior: f64,
     #[arg(long)]
     out: PathBuf,
 }
@@ -296,6 +300,7 @@ pub fn run(args: &Args) -> Result<()> {
         shading: args.shading.shading()?,
         depth: observed.depth.is_some().then_some(depth_loss),
         optimize_z: base.optimize_z || (args.optimize_pose && observes_z),
+        code_prior: args.code_prior,
         ..base
     };
     let job = Job {
