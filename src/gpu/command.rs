@@ -443,7 +443,9 @@ impl Recorder {
     /// Fills `size` bytes of a buffer from `offset` (both multiples of 4) with a repeated
     /// 32-bit word.
     pub fn fill_buffer_range(&mut self, buffer: &Buffer, offset: u64, size: u64, word: u32) {
-        debug_assert!(offset.is_multiple_of(4) && size.is_multiple_of(4) && offset + size <= buffer.size());
+        debug_assert!(
+            offset.is_multiple_of(4) && size.is_multiple_of(4) && offset + size <= buffer.size()
+        );
         // SAFETY: recording state; the range lies inside the buffer (checked above in debug
         // builds, by the callers' fixed layouts otherwise).
         unsafe {

@@ -213,7 +213,7 @@ fn from_files(args: &Args, view: View, further: &[FurtherView]) -> Result<Observ
         if let Some(all) = observed.depth.as_mut() {
             match depth {
                 Some(path) => all.extend(loss::load_depth(&path, w, h)?),
-                None => all.extend(std::iter::repeat(0.0).take(mask.len())),
+                None => all.extend(std::iter::repeat_n(0.0, mask.len())),
             }
         }
         if let Some(all) = observed.shaded.as_mut() {
