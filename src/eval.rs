@@ -341,10 +341,29 @@ impl EvalSettings {
     }
 }
 
-/// Azimuth offsets (radians) of the views after the first: each drawn uniformly until it
-/// lies at least [`MIN_VIEW_SEPARATION`] from every view before it.
+/// Azimuth offsets (radians) of the views after the first, every two views at least
+/// [`MIN_VIEW_SEPARATION`] apart. Up to four views, each is drawn uniformly until it lies
+/// far enough from every view before it (three views always leave a gap of 120 degrees,
+/// so this ends). Five or six views may not fit after random draws (four at 90 degrees
+/// leave no room): there the gaps between neighbours are the separation plus a uniform
+/// share of the rest of the circle.
 fn view_offsets(rng: &mut Rng, views: usize) -> Vec<f64> {
     let tau = std::f64::consts::TAU;
+    if views > 4 {
+        let mut cuts: Vec<f64> = (1..views).map(|_| rng.uniform()).collect();
+        cuts.sort_by(f64::total_cmp);
+        let slack = tau - views as f64 * MIN_VIEW_SEPARATION;
+        let mut at = 0.0;
+        let mut previous = 0.0;
+        return cuts
+            .iter()
+            .map(|&cut| {
+                at += MIN_VIEW_SEPARATION + slack * (cut - previous);
+                previous = cut;
+                at
+            })
+            .collect();
+    }
     let apart = |a: f64, b: f64| {
         let d = (a - b).rem_euclid(tau);
         d.min(tau - d) >= MIN_VIEW_SEPARATION - 1e-12
@@ -352,8 +371,7 @@ fn view_offsets(rng: &mut Rng, views: usize) -> Vec<f64> {
     let mut offsets = vec![0.0];
     while offsets.len() < views {
         let candidate = rng.range(0.0, tau);
-        // Six views fit at exactly 60 degrees apart; past that no draw is accepted.
-        if offsets.len() >= 6 || offsets.iter().all(|&o| apart(o, candidate)) {
+        if offsets.iter().all(|&o| apart(o, candidate)) {
             offsets.push(candidate);
         }
     }
@@ -896,6 +914,30 @@ fn hash(s: &str) -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Every count of views the command line accepts ends, seed after seed, with every two
+    /// views at least the separation apart (with five or six, rejection alone could hang).
+    #[test]
+    fn view_offsets_keep_every_pair_apart_for_one_to_six_views() {
+        let tau = std::f64::consts::TAU;
+        for views in 1..=6 {
+            for seed in 0..200 {
+                let mut rng = Rng::new(seed);
+                let mut all = vec![0.0];
+                all.extend(view_offsets(&mut rng, views));
+                assert_eq!(all.len(), views);
+                for (i, a) in all.iter().enumerate() {
+                    for b in &all[i + 1..] {
+                        let d = (a - b).rem_euclid(tau);
+                        assert!(
+                            d.min(tau - d) >= MIN_VIEW_SEPARATION - 1e-9,
+                            "{views} views, seed {seed}: {all:?}"
+                        );
+                    }
+                }
+            }
+        }
+    }
 
     #[test]
     fn surface_distance_finds_faces_edges_and_corners() {
