@@ -1,8 +1,9 @@
 #version 460
-// G-buffer pass writing triangle ids only, fragment stage: triangle id + 1 from the
-// primitive's index in the draw (one indexed draw of the whole mesh).
+// G-buffer pass writing triangle ids only, fragment stage: triangle id + 1, the flat
+// attribute of the triangle's provoking vertex (see gbuffer_indexed.vert).
+layout(location = 0) flat in uint in_id;
 layout(location = 0) out uint out_id;
 
 void main() {
-    out_id = uint(gl_PrimitiveID) + 1u;
+    out_id = in_id;
 }

@@ -77,7 +77,7 @@ fn check_views(mesh: &Mesh, views: &[View]) -> Vec<Compared> {
     let gpu = rasterizer
         .render(&ctx, mesh, views, Outputs::IdsBaryDepth)
         .expect("render");
-    // The ids-only pass (one indexed draw, ids from gl_PrimitiveID) covers exactly the
+    // The ids-only pass (one indexed draw, ids from the provoking vertex) covers exactly the
     // same pixels with the same triangles as the non-indexed one.
     let ids_only = rasterizer
         .render(&ctx, mesh, views, Outputs::Ids)

@@ -971,14 +971,23 @@ impl Scene {
             self.background.size(),
         );
         let n = self.views.count();
-        rec.fill_buffer_range(&self.boxes, 16, 8 * n as u64, 0x7fff_ffff);
-        rec.fill_buffer_range(&self.boxes, 16 + 8 * n as u64, 8 * n as u64, 0x8000_0001);
+        // Projecting every vertex to find the box costs more than classifying every pixel
+        // once a view has about as many vertices as pixels: then the box is the image.
+        let (width, height) = (self.views.width(), self.views.height());
+        let whole_image = self.mesh.vertex_count() as u64 >= width as u64 * height as u64;
+        let (lo, hi) = if whole_image {
+            (-8i32 as u32, width.max(height) + 8)
+        } else {
+            (0x7fff_ffff, 0x8000_0001)
+        };
+        rec.fill_buffer_range(&self.boxes, 16, 8 * n as u64, lo);
+        rec.fill_buffer_range(&self.boxes, 16 + 8 * n as u64, 8 * n as u64, hi);
+        // The float gradients need no clearing: the resolve below writes every element
+        // before the shading and depth passes add to them.
         for buffer in [
             &self.antialiased,
             &self.partials,
             &self.stats,
-            &self.grad_camera,
-            &self.grad_attributes,
             &self.grad_camera_fixed,
             &self.grad_attributes_fixed,
         ] {
@@ -1004,6 +1013,9 @@ impl Scene {
         let constants = self.pass_constants(0);
         let vertex_groups = self.grid(self.mesh.vertex_count());
         for (stage, groups) in [vertex_groups, 1].into_iter().enumerate() {
+            if stage == 0 && whole_image {
+                continue;
+            }
             rec.memory_barrier();
             rec.run_compute(
                 &renderer.bounds,

@@ -533,10 +533,6 @@ fn query_features(instance: &ash::Instance, pd: vk::PhysicalDevice) -> FeatureSu
                     "int64 and int64 buffer atomics (deterministic fixed-point sums)",
                     core.shader_int64 == vk::TRUE && v12.shader_buffer_int64_atomics == vk::TRUE,
                 ),
-                (
-                    "geometry shader capability (gl_PrimitiveID for triangle ids)",
-                    core.geometry_shader == vk::TRUE,
-                ),
                 ("timeline semaphores", v12.timeline_semaphore == vk::TRUE),
                 ("synchronization2", v13.synchronization2 == vk::TRUE),
                 ("dynamic rendering", v13.dynamic_rendering == vk::TRUE),
@@ -693,7 +689,6 @@ fn create_device(
     let core = vk::PhysicalDeviceFeatures::default()
         .vertex_pipeline_stores_and_atomics(true)
         .fragment_stores_and_atomics(true)
-        .geometry_shader(true)
         .shader_int64(true);
     let mut v12 = vk::PhysicalDeviceVulkan12Features::default()
         .timeline_semaphore(true)

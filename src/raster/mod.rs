@@ -144,12 +144,66 @@ impl ViewBuffers {
 }
 
 /// A mesh on the device: positions (float x, y, z per vertex, writable by compute passes)
-/// and triangle indices.
+/// and triangle indices, and the index order of the ids-only G-buffer draw
+/// ([`provoking_order`]).
 pub struct MeshBuffers {
     positions: Buffer,
     triangles: Buffer,
+    /// The ids draw's index buffer: triangle t is entries [t, ., .].
+    provoking: Buffer,
+    /// The mesh vertex of each entry of that draw.
+    sources: Buffer,
     vertex_count: u32,
     triangle_count: u32,
+}
+
+/// The triangle id without `gl_PrimitiveID`: an index order for one indexed draw in which
+/// triangle t's provoking (first) vertex is draw entry t, so a flat attribute `entry + 1`
+/// is the id + 1. Returns the draw's indices (3 per triangle, each triangle's corners
+/// rotated, never reordered, so the winding and the covered pixels are the mesh's) and the
+/// mesh vertex of every entry. Entries 0..triangles are each triangle's provoking corner
+/// (greedily one not yet used, so most vertices appear once); a vertex no triangle
+/// provokes gets one more entry, and the other two corners of a triangle use the vertex's
+/// first entry.
+///
+/// Why: on CPU drivers (llvmpipe) a fragment shader that reads `gl_PrimitiveID` sends
+/// every triangle through the slow primitive pipeline (about 1.5x a plain render at 1e6
+/// triangles); a flat attribute costs a plain render plus one vertex shader invocation
+/// per extra entry (about twice the vertices), and needs no geometry-shader capability.
+pub fn provoking_order(mesh: &Mesh) -> (Vec<u32>, Vec<u32>) {
+    let triangles = mesh.triangles();
+    let mut entry_of = vec![u32::MAX; mesh.vertex_count()];
+    let mut sources = Vec::with_capacity(triangles.len() + triangles.len() / 8);
+    let mut first_corner = Vec::with_capacity(triangles.len());
+    for (t, tri) in triangles.iter().enumerate() {
+        let k = (0..3)
+            .find(|&k| entry_of[tri[k] as usize] == u32::MAX)
+            .unwrap_or(0);
+        if entry_of[tri[k] as usize] == u32::MAX {
+            entry_of[tri[k] as usize] = t as u32;
+        }
+        sources.push(tri[k]);
+        first_corner.push(k);
+    }
+    for (v, entry) in entry_of.iter_mut().enumerate() {
+        if *entry == u32::MAX {
+            *entry = sources.len() as u32;
+            sources.push(v as u32);
+        }
+    }
+    let indices = triangles
+        .iter()
+        .zip(first_corner)
+        .enumerate()
+        .flat_map(|(t, (tri, k))| {
+            [
+                t as u32,
+                entry_of[tri[(k + 1) % 3] as usize],
+                entry_of[tri[(k + 2) % 3] as usize],
+            ]
+        })
+        .collect();
+    (indices, sources)
 }
 
 impl MeshBuffers {
@@ -167,9 +221,12 @@ impl MeshBuffers {
             .ok()
             .filter(|&t| t < u32::MAX / 3)
             .ok_or_else(|| Error::Limit(format!("{} triangles", mesh.triangle_count())))?;
+        let (provoking, sources) = provoking_order(mesh);
         Ok(Self {
             positions: Buffer::from_slice(ctx, "mesh positions", mesh.positions())?,
             triangles: Buffer::from_slice(ctx, "mesh triangles", mesh.triangles())?,
+            provoking: Buffer::from_slice(ctx, "ids draw indices", &provoking)?,
+            sources: Buffer::from_slice(ctx, "ids draw sources", &sources)?,
             vertex_count: mesh.vertex_count() as u32,
             triangle_count,
         })
@@ -398,7 +455,7 @@ impl Rasterizer {
                 name: "gbuffer ids",
                 vertex: &spirv(GBUFFER_INDEXED_VERT)?,
                 fragment: &spirv(GBUFFER_INDEXED_IDS_FRAG)?,
-                bindings: &[BindingKind::StorageBuffer; 2],
+                bindings: &[BindingKind::StorageBuffer; 3],
                 push_constant_bytes: 4,
                 color_formats: &[Format::R32Uint],
                 depth_format: Some(Format::D32Float),
@@ -441,8 +498,8 @@ impl Rasterizer {
     }
 
     /// Records the G-buffer pass for every view (view k into layer k). Ids alone (the
-    /// differentiable passes' input) come from one indexed draw, the id from
-    /// `gl_PrimitiveID`; barycentrics and depth from non-indexed draws whose vertex k of
+    /// differentiable passes' input) come from one indexed draw, the id from the
+    /// provoking vertex ([`provoking_order`]); barycentrics and depth from non-indexed draws whose vertex k of
     /// triangle t carries the id and a unit barycentric vector (in chunks whose index
     /// range fits `maxStorageBufferRange`). The images end in [`ImageState::Attachment`].
     pub fn draw(
@@ -490,10 +547,11 @@ impl Rasterizer {
                     &[
                         Binding::buffer(&mesh.positions),
                         Binding::buffer(&views.views),
+                        Binding::buffer(&mesh.sources),
                     ],
                 );
                 rec.graphics_constants(pipeline, &layer);
-                rec.draw_indexed(&mesh.triangles, 0, 3 * mesh.triangle_count);
+                rec.draw_indexed(&mesh.provoking, 0, 3 * mesh.triangle_count);
                 rec.end_rendering();
                 continue;
             }
@@ -659,5 +717,41 @@ impl ShadedTarget {
                 false,
             )?,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every triangle provokes its own entry, its corners keep their cyclic order (so the
+    /// winding is the mesh's), and each vertex has an entry even where no triangle could
+    /// give it one.
+    #[test]
+    fn provoking_order_gives_every_triangle_its_own_first_entry() {
+        let sphere = Mesh::uv_sphere(0.1, 9, 13);
+        // A vertex that no triangle uses, and a fan whose centre provokes one triangle only.
+        let mut positions = sphere.positions().to_vec();
+        positions.push([1.0, 1.0, 1.0]);
+        let mesh = Mesh::new(positions, sphere.triangles().to_vec()).unwrap();
+        let (indices, sources) = provoking_order(&mesh);
+        assert_eq!(indices.len(), 3 * mesh.triangle_count());
+        for (t, tri) in mesh.triangles().iter().enumerate() {
+            let entries: [u32; 3] = indices[3 * t..3 * t + 3].try_into().unwrap();
+            assert_eq!(entries[0], t as u32, "triangle {t}");
+            let corners = entries.map(|e| sources[e as usize]);
+            let rotations = [*tri, [tri[1], tri[2], tri[0]], [tri[2], tri[0], tri[1]]];
+            assert!(
+                rotations.contains(&corners),
+                "triangle {t}: {corners:?} from {tri:?}"
+            );
+        }
+        let mut seen = vec![false; mesh.vertex_count()];
+        for &v in &sources {
+            seen[v as usize] = true;
+        }
+        assert!(seen.iter().all(|&s| s));
+        // Greedy choice keeps the extra vertex work small: one entry per triangle plus few.
+        assert!(sources.len() <= mesh.triangle_count() + mesh.vertex_count() / 10 + 1);
     }
 }

@@ -268,19 +268,20 @@ pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
 /// times) and `bench.png` (time against vertex count, log axes).
 pub fn write(out: &Path, rows: &[Row], (width, height): (u32, u32), device: &str) -> Result<()> {
     let mut csv =
-        String::from("vertices,faces,width,height,forward_ms,backward_ms,plain_ms,device,dtz_error,stretch_error\n");
+        String::from("vertices,faces,width,height,forward_ms,backward_ms,plain_ms,device,dtz_error,stretch_error,ratio\n");
     let mut json = Vec::new();
     let device_field = device.replace(',', ";");
     for r in rows {
         csv.push_str(&format!(
-            "{},{},{width},{height},{:.4},{:.4},{:.4},{device_field},{:.5},{:.5}\n",
+            "{},{},{width},{height},{:.4},{:.4},{:.4},{device_field},{:.5},{:.5},{:.3}\n",
             r.vertices,
             r.faces,
             r.forward_ms,
             r.backward_ms,
             r.plain_ms,
             r.dtz_error,
-            r.stretch_error
+            r.stretch_error,
+            r.ratio
         ));
         let passes: serde_json::Map<String, serde_json::Value> = r
             .passes
@@ -299,6 +300,7 @@ pub fn write(out: &Path, rows: &[Row], (width, height): (u32, u32), device: &str
             "plain_wall_ms": r.plain_wall_ms,
             "dtz_error": r.dtz_error,
             "stretch_error": r.stretch_error,
+            "ratio": r.ratio,
             "device": device,
             "pass_ms": passes,
         }));
