@@ -323,13 +323,28 @@ fn e_step_over_many_spans_matches_float64() {
     let ctx = common::context();
     let pipelines = CpdPipelines::new(&ctx).unwrap();
     let (many, few) = (70_000, 96);
-    for (m, n) in [(many, few), (few, many)] {
+    // sigma^2 0.05 visits every pair; at 1e-3 both sets are sorted into cells and each
+    // workgroup visits only the cells near its points, in several pieces
+    // (cpd::neighbours): the terms left out must not show.
+    for (m, n, sigma2) in [
+        (many, few, 0.05),
+        (few, many, 0.05),
+        (many, few, 1e-3),
+        (few, many, 1e-3),
+    ] {
         let source = points(m, 41, 1.0);
         let target: Vec<DVec3> = points(n, 42, 1.0)
             .into_iter()
             .map(|p| smooth(p, 0.1))
             .collect();
-        let (sigma2, log_c) = (0.05, -3.0);
+        let log_c = -3.0;
+        let width = vkdr::cpd::neighbours::cutoff(sigma2, log_c, m.max(n));
+        let grid = vkdr::cpd::neighbours::Grid::new(source.iter().chain(&target), width);
+        assert_eq!(
+            grid.is_some(),
+            sigma2 < 0.01,
+            "sigma^2 {sigma2}: cells of {width}"
+        );
         let mut device = GpuBackend::new(&ctx, &pipelines, &source, &target, 1.0).unwrap();
         let got = device.expectation(&source, sigma2, log_c).unwrap();
         let want = ReferenceBackend::new(&source, &target, 1.0)

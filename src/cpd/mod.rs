@@ -22,6 +22,7 @@
 
 pub mod linalg;
 pub mod m_step;
+pub mod neighbours;
 pub mod reference;
 
 use std::time::Instant;
@@ -43,6 +44,7 @@ const ACCUMULATE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/cpd_accumula
 const GAUSS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/gauss_product.comp.spv"));
 /// Points served per invocation by the passes above (`ROWS` in `glsl/include/cpd.glsl`).
 const ROWS: u32 = 8;
+const _: () = assert!(neighbours::POINTS_PER_GROUP == 64 * ROWS as usize);
 /// Points of the other set one dispatch of those passes loops over (see
 /// [`LOOP_LIMIT`]): on lavapipe an invocation runs about 10 loop iterations per 8 points
 /// and loop (two loops in the denominator pass), some 2e4 in all.
@@ -604,7 +606,11 @@ struct EstepConstants {
     end: u32,
     inv_two_sigma2: f32,
     log_c: f32,
+    piece: u32,
+    pieces: u32,
 }
+
+const ESTEP_CONSTANTS: u32 = std::mem::size_of::<EstepConstants>() as u32;
 
 /// CPD's compute pipelines.
 pub struct CpdPipelines {
@@ -621,17 +627,23 @@ impl CpdPipelines {
                 ctx,
                 "cpd denominator",
                 &spirv(DENOMINATOR)?,
-                &[b; 4],
-                24,
+                &[b; 5],
+                ESTEP_CONSTANTS,
             )?,
             accumulate: ComputePipeline::new(
                 ctx,
                 "cpd accumulate",
                 &spirv(ACCUMULATE)?,
-                &[b; 4],
-                24,
+                &[b; 5],
+                ESTEP_CONSTANTS,
             )?,
-            gauss: ComputePipeline::new(ctx, "gauss product", &spirv(GAUSS)?, &[b; 3], 24)?,
+            gauss: ComputePipeline::new(
+                ctx,
+                "gauss product",
+                &spirv(GAUSS)?,
+                &[b; 3],
+                ESTEP_CONSTANTS,
+            )?,
         })
     }
 }
@@ -654,6 +666,8 @@ pub struct GpuBackend<'a> {
     source: Vec<DVec3>,
     offset: DVec3,
     beta: f64,
+    /// The target points (uploaded in each E-step's sorted order into `target`).
+    target_points: Vec<DVec3>,
     target: Buffer,
     n: usize,
     moving: Buffer,
@@ -682,6 +696,7 @@ impl<'a> GpuBackend<'a> {
             source: source.to_vec(),
             offset,
             beta,
+            target_points: target.to_vec(),
             target: Buffer::from_slice(ctx, "cpd target", &vec4s(target, offset))?,
             n: target.len(),
             moving: device("cpd moving", m * 16)?,
@@ -698,7 +713,6 @@ impl<'a> GpuBackend<'a> {
 impl Backend for GpuBackend<'_> {
     fn expectation(&mut self, moving: &[DVec3], sigma2: f64, log_c: f64) -> Result<Expectation> {
         let (m, n) = (moving.len() as u32, self.n as u32);
-        self.moving.write(0, &vec4s(moving, self.offset))?;
         let constants = EstepConstants {
             m,
             n,
@@ -706,31 +720,107 @@ impl Backend for GpuBackend<'_> {
             end: 0,
             inv_two_sigma2: (0.5 / sigma2) as f32,
             log_c: log_c as f32,
+            piece: 0,
+            pieces: 1,
         };
         if !constants.inv_two_sigma2.is_finite() || !constants.log_c.is_finite() {
             return Err(Error::InvalidInput(format!(
                 "sigma^2 = {sigma2:e} is out of float32 range"
             )));
         }
+        // Both sets sorted into cells where only near pairs matter (neighbours.rs).
+        let width = neighbours::cutoff(sigma2, log_c, self.n.max(moving.len()));
+        let grid = neighbours::Grid::new(moving.iter().chain(&self.target_points), width);
+        let ((moving_order, moving_cells), (target_order, target_cells)) = match &grid {
+            Some(grid) => (grid.sort(moving), grid.sort(&self.target_points)),
+            None => {
+                let identity = |k: u32| ((0..k).collect::<Vec<u32>>(), Vec::new());
+                (identity(m), identity(n))
+            }
+        };
+        let sorted = |points: &[DVec3], order: &[u32]| -> Vec<DVec3> {
+            order.iter().map(|&i| points[i as usize]).collect()
+        };
+        self.moving
+            .write(0, &vec4s(&sorted(moving, &moving_order), self.offset))?;
+        self.target.write(
+            0,
+            &vec4s(&sorted(&self.target_points, &target_order), self.offset),
+        )?;
+        let groups = |own: u32| own.div_ceil(64 * ROWS);
+        let (denominator_ranges, denominator_pieces) = neighbours::plan(
+            grid.as_ref(),
+            &target_cells,
+            &moving_cells,
+            groups(n) as usize,
+            m,
+            SPAN,
+        );
+        let (accumulate_ranges, accumulate_pieces) = neighbours::plan(
+            grid.as_ref(),
+            &moving_cells,
+            &target_cells,
+            groups(m) as usize,
+            n,
+            SPAN,
+        );
+        let denominator_ranges =
+            Buffer::from_slice(self.ctx, "cpd denominator ranges", &denominator_ranges)?;
+        let accumulate_ranges =
+            Buffer::from_slice(self.ctx, "cpd accumulate ranges", &accumulate_ranges)?;
         let p = self.pipelines;
         let mut rec = Recorder::new(self.ctx)?;
-        let (moving, target, log_den) = (&self.moving, &self.target, &self.log_den);
+        let (moving_buffer, target, log_den) = (&self.moving, &self.target, &self.log_den);
         let passes = [
-            (&p.denominator, &self.running, m, n),
-            (&p.accumulate, &self.sums, n, m),
+            (
+                &p.denominator,
+                &self.running,
+                &denominator_ranges,
+                denominator_pieces,
+                n,
+            ),
+            (
+                &p.accumulate,
+                &self.sums,
+                &accumulate_ranges,
+                accumulate_pieces,
+                m,
+            ),
         ];
-        for (pipeline, out, other, own) in passes {
+        for (pipeline, out, ranges, pieces, own) in passes {
             let bindings = [
-                Binding::buffer(moving),
+                Binding::buffer(moving_buffer),
                 Binding::buffer(target),
                 Binding::buffer(log_den),
                 Binding::buffer(out),
+                Binding::buffer(ranges),
             ];
-            record_spans(&mut rec, pipeline, &bindings, constants, other, own);
+            for piece in 0..pieces {
+                rec.run_compute(
+                    pipeline,
+                    &bindings,
+                    &EstepConstants {
+                        piece,
+                        pieces,
+                        ..constants
+                    },
+                    Groups::Count(groups(own), 1, 1),
+                );
+                rec.memory_barrier();
+            }
         }
         self.ctx.submit_and_wait(rec)?;
-        let sums = self.sums.read_range::<[[f32; 4]; 2]>(0, m as usize)?;
-        let log_den = self.log_den.read_range::<f32>(0, n as usize)?;
+        let sorted_sums = self.sums.read_range::<[[f32; 4]; 2]>(0, m as usize)?;
+        let sorted_log_den = self.log_den.read_range::<f32>(0, n as usize)?;
+        // Back to the callers' order.
+        let mut sums = vec![[[0.0f32; 4]; 2]; m as usize];
+        for (k, &i) in moving_order.iter().enumerate() {
+            sums[i as usize] = sorted_sums[k];
+        }
+        let mut log_den = vec![0.0f32; n as usize];
+        for (k, &i) in target_order.iter().enumerate() {
+            log_den[i as usize] = sorted_log_den[k];
+        }
         Ok(Expectation {
             p1: sums.iter().map(|s| s[0][3] as f64).collect(),
             // Pt1_n = sum_m P_mn = 1 - c / denominator_n.
@@ -757,6 +847,8 @@ impl Backend for GpuBackend<'_> {
             end: 0,
             inv_two_sigma2: (0.5 / (self.beta * self.beta)) as f32,
             log_c: 0.0,
+            piece: 0,
+            pieces: 1,
         };
         for block in (0..v.cols).step_by(4) {
             let width = 4.min(v.cols - block);
@@ -792,8 +884,8 @@ impl Backend for GpuBackend<'_> {
     }
 }
 
-/// Records one of the passes above: a dispatch per [`SPAN`] of the `other` set's points
-/// (in order, each after the last), each serving all `own` points.
+/// Records the kernel product: a dispatch per [`SPAN`] of the `other` set's points (in
+/// order, each after the last), each serving all `own` points.
 fn record_spans(
     rec: &mut Recorder,
     pipeline: &ComputePipeline,

@@ -81,7 +81,7 @@ def main():
                 out = os.path.join(args.out, f"{method}_{n}")
                 started = time.perf_counter()
                 run = subprocess.run([args.vkdr, "cpd", src, tgt, "--beta", str(args.beta), "--lambda", str(args.lamb),
-                                      "--w", str(args.w), "--max-iterations", str(args.max_iterations), "--out", out] + extra,
+                                      "--w", str(args.w), "--max-iterations", str(args.max_iterations), "--out", out, "--force"] + extra,
                                      capture_output=True, text=True)
                 wall = time.perf_counter() - started
                 if run.returncode != 0:
