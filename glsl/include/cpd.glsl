@@ -4,18 +4,20 @@
 // Denominators are kept as logarithms (log-sum-exp), so far points and collapsing s2
 // never divide 0 by 0. Points are vec4 (x, y, z, unused).
 //
-// Every pass loops over all points of the other set. Each subgroup loads one point per
+// Every pass loops over points of the other set (gauss_product over all of them, the
+// E-step passes over those near their own, see below). Each subgroup loads one point per
 // lane and passes them around with subgroupShuffle: on a CPU driver a buffer load at an
 // index the compiler cannot prove uniform is gathered lane by lane (6x slower on
 // lavapipe); on a GPU it is one broadcast load either way. So no invocation may return
 // early: every lane takes part in the shuffles. Each invocation serves ROWS points of its
-// own set (a grid-stride apart), so that each point passed serves ROWS pairs (on
+// own set (gauss_product: a grid-stride apart; the E-step: 64 apart in a workgroup's
+// consecutive block), so that each point passed serves ROWS pairs (on
 // lavapipe, 4 rows ran 3x faster than 1; 8 rows another 1.2x at 2000 points, seven
 // interleaved runs of `vkdr cpd`, whole process 0.64 -> 0.52 s median; 16 no faster. A GPU
 // keeps 8 x 64 points per workgroup busy from a few thousand points up).
 //
-// One dispatch loops over one span [first, end) of the other set, and the host runs a
-// dispatch per span, in order, each carrying on from the last one's partial sums. That
+// One dispatch loops over one span [first, end) of the other set (the E-step: one piece
+// of each workgroup's ranges), and the host runs a dispatch per span, in order, each carrying on from the last one's partial sums. That
 // bounds the loop iterations of one invocation, which lavapipe needs: llvmpipe stops every
 // shader invocation's loops, silently, after 65535 iterations all loops together
 // (LP_MAX_TGSI_LOOP_ITERATIONS in Mesa's gallivm), and a single loop over 4e4 points
@@ -44,7 +46,7 @@ uint row(uint r) {
 }
 
 // The E-step passes visit, per workgroup, only the other set's points near its own: both
-// sets are sorted into cells of a grid (Morton order, src/cpd/mod.rs, `neighbour_plan`),
+// sets are sorted into cells of a grid (Morton order, src/cpd/neighbours.rs, `plan`),
 // a workgroup serves ROWS x 64 consecutive own points, and loops over the ranges of other
 // points in the cells next to theirs, where every term that is not negligible lies (the
 // cell is wider than the distance at which a term drops below 2^-24 of the outlier term

@@ -1,14 +1,17 @@
 //! Which points of the other set each E-step workgroup visits (`glsl/include/cpd.glsl`).
 //!
-//! A term exp(-d^2 / (2 s2)) of a sum that also holds the outlier term c is negligible
-//! once it is below 2^-24 c / max(M, N): all such terms together then move no sum by
-//! more than float32's rounding. So the E-step needs only the pairs closer than the
-//! cutoff r with exp(-r^2 / (2 s2)) = 2^-24 c / max(M, N). Both sets are sorted into cells
+//! A term exp(-d^2 / (2 s2)) of a denominator (which also holds the outlier term c) is
+//! negligible once it is below 2^-24 c / max(M, N): all such terms of one denominator
+//! together are below 2^-24 of it, float32's rounding. So the E-step needs only the pairs
+//! closer than the cutoff r with exp(-r^2 / (2 s2)) = 2^-24 c / max(M, N). The sums of
+//! the second pass lose as little in absolute terms: P1 of a source point at most 2^-24
+//! in all (a point with no target near reads 0 instead of about 1e-8), the pull at most
+//! 2^-24 r and the spread 2^-24 r^2. Both sets are sorted into cells
 //! of width at least r (Morton order, so that consecutive points are near each other); a
 //! workgroup's ROWS x 64 consecutive own points then visit the other points of the cells
 //! next to theirs, as a few ranges of the other set's sorted order. While the sets span
-//! fewer than [`MIN_CELLS`] cells (sigma large, early iterations) every workgroup visits
-//! the whole other set, in order, as before.
+//! fewer than [`MIN_CELLS`] cells along every axis (sigma large, early iterations) every
+//! workgroup visits the whole other set, in order, as before.
 //!
 //! Every visited pair is computed exactly; only negligible pairs are left out. The
 //! order of the ranges is fixed by the sort, so the sums are the same on every run.
@@ -107,6 +110,10 @@ pub fn plan(
     other_count: u32,
     span: u32,
 ) -> (Vec<[u32; 2]>, u32) {
+    assert!(
+        span > 2 * RANGE_COST,
+        "pieces of {span} points are too short"
+    );
     let Some(grid) = grid else {
         // The whole other set in spans of `span`, the same for every workgroup.
         let spans: Vec<Vec<[u32; 2]>> = crate::gpu::spans(other_count, span)

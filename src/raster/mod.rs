@@ -222,6 +222,14 @@ impl MeshBuffers {
             .filter(|&t| t < u32::MAX / 3)
             .ok_or_else(|| Error::Limit(format!("{} triangles", mesh.triangle_count())))?;
         let (provoking, sources) = provoking_order(mesh);
+        let source_bytes = sources.len() as u64 * 4;
+        if source_bytes > limit {
+            return Err(Error::Limit(format!(
+                "the ids draw's {} entries need {source_bytes} bytes, over the device's \
+                 storage buffer range of {limit} bytes",
+                sources.len()
+            )));
+        }
         Ok(Self {
             positions: Buffer::from_slice(ctx, "mesh positions", mesh.positions())?,
             triangles: Buffer::from_slice(ctx, "mesh triangles", mesh.triangles())?,
