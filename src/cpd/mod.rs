@@ -10,7 +10,8 @@
 //! algorithm with a float64 E-step and kernel products.
 //!
 //! The iterations stop on the objective (negative log-likelihood plus the smoothness
-//! term, relative change below the tolerance), at sigma^2's floor, or where an iteration
+//! term, relative change below the tolerance) once the points have stopped moving too
+//! (mean movement below the tolerance, in source radii), at sigma^2's floor, or where an iteration
 //! raises the objective: exact EM never does, so the device's float32 precision has been
 //! reached, and that iteration is undone ([`Stop`]). In the fine phase, SQUAREM jumps
 //! along the iterates where that lowers the objective more than a plain step.
@@ -81,7 +82,7 @@ impl Default for CpdParams {
             beta: 2.0,
             lambda: 2.0,
             w: 0.1,
-            max_iterations: 150,
+            max_iterations: 1000,
             tolerance: 1e-5,
             rank: None,
             accelerate: true,

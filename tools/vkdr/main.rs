@@ -147,7 +147,8 @@ struct CpdArgs {
     #[arg(long, default_value_t = CpdParams::default().max_iterations)]
     max_iterations: usize,
     /// Stop when an iteration lowers the objective (negative log-likelihood plus the
-    /// smoothness term) by less than this fraction of it.
+    /// smoothness term) by less than this fraction of it and moves the points by less
+    /// than this many source RMS radii on average.
     #[arg(long, allow_negative_numbers = true, default_value_t = CpdParams::default().tolerance)]
     tolerance: f64,
     /// Replace the kernel by its Nystrom approximation from this many landmarks (faster,
