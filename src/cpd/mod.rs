@@ -667,6 +667,16 @@ impl CpdPipelines {
     }
 }
 
+/// Values read in a sorted order (`order[k]` is the caller's index of value k), back in
+/// the caller's order.
+fn unsorted<T: Copy>(sorted: Vec<T>, order: &[u32]) -> Vec<T> {
+    let mut values = sorted.clone();
+    for (&value, &i) in sorted.iter().zip(order) {
+        values[i as usize] = value;
+    }
+    values
+}
+
 fn vec4s(points: &[DVec3], offset: DVec3) -> Vec<[f32; 4]> {
     points
         .iter()
@@ -829,17 +839,15 @@ impl Backend for GpuBackend<'_> {
             }
         }
         self.ctx.submit_and_wait(rec)?;
-        let sorted_sums = self.sums.read_range::<[[f32; 4]; 2]>(0, m as usize)?;
-        let sorted_log_den = self.log_den.read_range::<f32>(0, n as usize)?;
         // Back to the callers' order.
-        let mut sums = vec![[[0.0f32; 4]; 2]; m as usize];
-        for (k, &i) in moving_order.iter().enumerate() {
-            sums[i as usize] = sorted_sums[k];
-        }
-        let mut log_den = vec![0.0f32; n as usize];
-        for (k, &i) in target_order.iter().enumerate() {
-            log_den[i as usize] = sorted_log_den[k];
-        }
+        let sums = unsorted(
+            self.sums.read_range::<[[f32; 4]; 2]>(0, m as usize)?,
+            &moving_order,
+        );
+        let log_den = unsorted(
+            self.log_den.read_range::<f32>(0, n as usize)?,
+            &target_order,
+        );
         Ok(Expectation {
             p1: sums.iter().map(|s| s[0][3] as f64).collect(),
             // Pt1_n = sum_m P_mn = 1 - c / denominator_n.

@@ -208,28 +208,31 @@ pub fn provoking_order(mesh: &Mesh) -> (Vec<u32>, Vec<u32>) {
 
 impl MeshBuffers {
     pub fn new(ctx: &Context, mesh: &Mesh) -> Result<Self> {
+        // A buffer that the vertex stage binds whole must fit one storage-buffer range.
         let limit = ctx.info().max_storage_buffer_range as u64;
-        let position_bytes = mesh.vertex_count() as u64 * 12;
-        if position_bytes > limit {
-            return Err(Error::Limit(format!(
-                "{} vertices need {position_bytes} bytes, over the device's storage buffer \
-                 range of {limit} bytes",
-                mesh.vertex_count()
-            )));
-        }
+        let fits = |what: String, bytes: u64| {
+            if bytes > limit {
+                Err(Error::Limit(format!(
+                    "{what} need {bytes} bytes, over the device's storage buffer range of \
+                     {limit} bytes"
+                )))
+            } else {
+                Ok(())
+            }
+        };
+        fits(
+            format!("{} vertices", mesh.vertex_count()),
+            mesh.vertex_count() as u64 * 12,
+        )?;
         let triangle_count = u32::try_from(mesh.triangle_count())
             .ok()
             .filter(|&t| t < u32::MAX / 3)
             .ok_or_else(|| Error::Limit(format!("{} triangles", mesh.triangle_count())))?;
         let (provoking, sources) = provoking_order(mesh);
-        let source_bytes = sources.len() as u64 * 4;
-        if source_bytes > limit {
-            return Err(Error::Limit(format!(
-                "the ids draw's {} entries need {source_bytes} bytes, over the device's \
-                 storage buffer range of {limit} bytes",
-                sources.len()
-            )));
-        }
+        fits(
+            format!("the ids draw's {} entries", sources.len()),
+            sources.len() as u64 * 4,
+        )?;
         Ok(Self {
             positions: Buffer::from_slice(ctx, "mesh positions", mesh.positions())?,
             triangles: Buffer::from_slice(ctx, "mesh triangles", mesh.triangles())?,
