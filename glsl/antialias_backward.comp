@@ -16,14 +16,20 @@
 
 layout(local_size_x = 64) in;
 
+// Stage 0: the largest term magnitudes this invocation has seen (magnitude_bits), merged
+// into work_count once per subgroup at the end rather than by one atomicMax per term, all
+// on one word.
+uint largest_camera = 0u;
+uint largest_attribute = 0u;
+
 // Adds one term of a fixed-point sum, or (stage 0) records its magnitude.
 void add_camera_term(uint at, float g, int shift) {
-    if (pc.stage == 0u) atomicMax(work_count[CAMERA_MAX], magnitude_bits(g));
+    if (pc.stage == 0u) largest_camera = max(largest_camera, magnitude_bits(g));
     else if (g != 0.0) atomicAdd(grad_camera_fixed[at], to_fixed(g, shift));
 }
 
 void add_attribute_term(uint at, float g, int shift) {
-    if (pc.stage == 0u) atomicMax(work_count[ATTRIBUTE_MAX], magnitude_bits(g));
+    if (pc.stage == 0u) largest_attribute = max(largest_attribute, magnitude_bits(g));
     else if (g != 0.0) atomicAdd(grad_attributes_fixed[at], to_fixed(g, shift));
 }
 
@@ -36,6 +42,7 @@ void add_clip_gradient(ViewData vd, uint view, uint v, vec3 g_clip) {
     vec2 o = clip_shift(vd);
     vec3 g = vec3(s.x * g_clip.x, s.y * g_clip.y, o.x * g_clip.x + o.y * g_clip.y + g_clip.z);
     uint at = 3u * (view * pc.vertex_count + v);
+    if (pc.stage == 1u) touched[v / VERTEX_BLOCK] = 1u;
     int shift = camera_shift();
     add_camera_term(at, g.x, shift);
     add_camera_term(at + 1u, g.y, shift);
@@ -130,4 +137,12 @@ void main() {
     // A driver that ended the loop early (lavapipe's loop limit) is reported, not trusted.
     uint expected = grid_items(gl_GlobalInvocationID.x, stride, count);
     if (done < expected) atomicAdd(work_count[UNFINISHED], expected - done);
+    if (pc.stage == 0u) {
+        uint camera_bits = subgroupMax(largest_camera);
+        uint attribute_bits = subgroupMax(largest_attribute);
+        if (subgroupElect()) {
+            if (camera_bits > 0u) atomicMax(work_count[CAMERA_MAX], camera_bits);
+            if (attribute_bits > 0u) atomicMax(work_count[ATTRIBUTE_MAX], attribute_bits);
+        }
+    }
 }

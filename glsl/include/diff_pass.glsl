@@ -36,6 +36,10 @@ layout(set = 0, binding = 18, std430) buffer Boxes { int boxes[]; };  // see bou
 // antialias and its backward read them instead of walking again.
 layout(set = 0, binding = 19, std430) buffer PairsX { uint pairs_x[]; };  // [view][y][x]
 layout(set = 0, binding = 20, std430) buffer PairsY { uint pairs_y[]; };  // [view][y][x]
+// Nonzero for each block of VERTEX_BLOCK vertices that got a camera-gradient term
+// (antialias_backward.comp); pose_gradient.comp visits only those blocks.
+layout(set = 0, binding = 21, std430) buffer Touched { uint touched[]; };
+const uint VERTEX_BLOCK = 64u;
 
 // work_count slots after the count and dispatch arguments (LOST_WALKS = 4 in diff.glsl):
 const uint CAMERA_MAX = 5u;     // magnitude_bits of the largest camera-gradient term

@@ -22,7 +22,7 @@ use bytemuck::{Pod, Zeroable};
 use crate::error::{Error, Result};
 use crate::gpu::{
     spans, spirv, Binding, BindingKind, Buffer, BufferKind, ComputePipeline, Context, Groups,
-    ImageState, Recorder, Timestamps, LOOP_LIMIT,
+    ImageState, Recorder, Recording, Timestamps, LOOP_LIMIT,
 };
 use crate::loss::{DistanceField, Loss};
 use crate::mesh::Mesh;
@@ -64,40 +64,36 @@ const ATTRIBUTE_MAX: u32 = 6;
 /// `glsl/work_args.comp`): at a few dozen loop iterations an item, far from
 /// [`crate::gpu::LOOP_LIMIT`].
 const ITEMS_PER_INVOCATION: u32 = 64;
-/// Timestamp slots [`Scene::record_passes`] needs.
-pub const PROFILE_SLOTS: u32 = 16;
-
-/// Where [`Scene::record_marked`] writes timestamps: the phase marks 0, 1, 2 (start,
-/// forward done, backward done), or one after every pass.
-struct Marks<'a> {
-    stamps: Option<&'a Timestamps>,
-    per_pass: bool,
-    names: Vec<&'static str>,
+/// What [`Scene::record_marked`] marks: timestamps 0, 1, 2 (start, forward done, backward
+/// done), or (a profile) a cut after every pass, each pass its own recording.
+enum Marks<'a> {
+    Phases(Option<&'a Timestamps>),
+    Cuts {
+        ctx: &'a Context,
+        passes: Vec<(&'static str, Recording)>,
+    },
 }
 
 impl Marks<'_> {
     fn start(&mut self, rec: &mut Recorder) {
-        if let Some(t) = self.stamps {
+        if let Marks::Phases(Some(t)) = self {
             rec.reset_timestamps(t);
             rec.timestamp(t, 0);
         }
     }
 
     fn phase(&mut self, rec: &mut Recorder, slot: u32) {
-        match self.stamps {
-            Some(t) if !self.per_pass => rec.timestamp(t, slot),
-            _ => {}
+        if let Marks::Phases(Some(t)) = self {
+            rec.timestamp(t, slot);
         }
     }
 
-    fn pass(&mut self, rec: &mut Recorder, name: &'static str) {
-        match self.stamps {
-            Some(t) if self.per_pass => {
-                self.names.push(name);
-                rec.timestamp(t, self.names.len() as u32);
-            }
-            _ => {}
+    fn pass(&mut self, rec: &mut Recorder, name: &'static str) -> Result<()> {
+        if let Marks::Cuts { ctx, passes } = self {
+            let done = std::mem::replace(rec, Recorder::new(ctx)?);
+            passes.push((name, done.finish()?));
         }
+        Ok(())
     }
 }
 
@@ -110,8 +106,11 @@ const TERMS_PER_LISTED: u32 = 3;
 /// Triangles a scene can hold: the pair records (`encode_pair` in
 /// `glsl/include/diff.glsl`) keep a triangle number in 28 bits.
 const MAX_TRIANGLES: usize = 1 << 28;
+/// Vertices per flag of the touched-blocks buffer (as `VERTEX_BLOCK` in
+/// `glsl/include/diff_pass.glsl`; one pose-pass workgroup each).
+const VERTEX_BLOCK: u32 = 64;
 /// Workgroups of the pose reduction's partial sums (at most).
-const POSE_GROUPS: u32 = 256;
+const POSE_GROUPS: u32 = 1024;
 
 /// Marks an edge without exactly one neighbouring triangle.
 pub const NO_NEIGHBOUR: u32 = u32::MAX;
@@ -328,6 +327,9 @@ struct PoseConstants {
     groups: u32,
     stage: u32,
     subgroups: u32,
+    from_fixed: u32,
+    max_slot: u32,
+    terms_per_listed: u32,
 }
 
 /// The scale (2^shift) of the fixed-point loss sums: every sum of a view's per-pixel terms
@@ -371,7 +373,7 @@ pub struct DiffRenderer {
 impl DiffRenderer {
     pub fn new(ctx: &Context) -> Result<Self> {
         let pass_bytes = std::mem::size_of::<PassConstants>() as u32;
-        let bindings = [BindingKind::StorageBuffer; 21];
+        let bindings = [BindingKind::StorageBuffer; 22];
         Ok(Self {
             rasterizer: Rasterizer::new(ctx)?,
             classify: ComputePipeline::new(
@@ -413,7 +415,7 @@ impl DiffRenderer {
                 ctx,
                 "pose gradient",
                 &spirv(POSE)?,
-                &[BindingKind::StorageBuffer; 6],
+                &[BindingKind::StorageBuffer; 9],
                 std::mem::size_of::<PoseConstants>() as u32,
             )?,
             resolve: ComputePipeline::new(
@@ -504,6 +506,9 @@ pub struct Scene {
     grad_object: Buffer,
     grad_pose: Buffer,
     pose_partials: Buffer,
+    /// Per block of [`VERTEX_BLOCK`] vertices, nonzero where the backward added a camera
+    /// gradient term to one of them: the pose pass skips the other blocks.
+    touched: Buffer,
     pose_groups: u32,
     /// [`DeviceInfo::grid_groups`](crate::gpu::DeviceInfo::grid_groups).
     grid_groups: u32,
@@ -790,6 +795,10 @@ impl Scene {
                 "pose partial sums",
                 n as u64 * pose_groups as u64 * subgroups as u64 * 24,
             )?,
+            touched: device(
+                "touched vertex blocks",
+                (vertices.div_ceil(VERTEX_BLOCK as u64) * 4).max(4),
+            )?,
             pose_groups,
             grid_groups,
             subgroups,
@@ -851,7 +860,7 @@ impl Scene {
     }
 
     /// The bindings of the per-pixel passes (`glsl/include/diff_pass.glsl`).
-    fn pass_bindings(&self) -> [Binding<'_>; 21] {
+    fn pass_bindings(&self) -> [Binding<'_>; 22] {
         [
             Binding::buffer(self.mesh.positions()),
             Binding::buffer(self.mesh.triangles()),
@@ -874,10 +883,10 @@ impl Scene {
             Binding::buffer(&self.boxes),
             Binding::buffer(&self.pairs_x),
             Binding::buffer(&self.pairs_y),
+            Binding::buffer(&self.touched),
         ]
     }
 
-    /// Workgroups of 64 for a grid-stride pass over `items`.
     /// Workgroups of 64 for a grid-stride pass over `items`: at most `grid_groups`, unless
     /// an invocation would then loop over more than [`ITEMS_PER_INVOCATION`] items.
     fn grid(&self, items: u32) -> u32 {
@@ -912,36 +921,47 @@ impl Scene {
         rec: &mut Recorder,
         timing: Option<&Timestamps>,
     ) -> Result<()> {
-        let mut marks = Marks {
-            stamps: timing,
-            per_pass: false,
-            names: Vec::new(),
-        };
-        self.record_marked(renderer, rec, &mut marks)
+        self.record_marked(renderer, rec, &mut Marks::Phases(timing))
     }
 
-    /// As [`Scene::record`], with a timestamp before the first pass and after every pass
-    /// (a profile): returns the passes' names, pass k timed from slot k to slot k + 1.
-    /// `stamps` needs [`PROFILE_SLOTS`] slots.
-    pub fn record_passes(
+    /// A profile: the medians over `repeats` (after one warm-up) of each pass of
+    /// [`Scene::record`] timed on the host's clock, each pass submitted alone and waited
+    /// for. Timestamps between passes cannot do this on CPU drivers: lavapipe defers a
+    /// draw's rasterization to whichever later command needs its pixels, so its time showed
+    /// up in the passes after it. Each figure includes one submission's overhead.
+    pub fn profile(
         &self,
+        ctx: &Context,
         renderer: &DiffRenderer,
-        rec: &mut Recorder,
-        stamps: &Timestamps,
-    ) -> Result<Vec<&'static str>> {
-        if stamps.count() < PROFILE_SLOTS {
-            return Err(Error::InvalidInput(format!(
-                "a profile needs {PROFILE_SLOTS} timestamps, not {}",
-                stamps.count()
-            )));
-        }
-        let mut marks = Marks {
-            stamps: Some(stamps),
-            per_pass: true,
-            names: Vec::new(),
+        repeats: usize,
+    ) -> Result<Vec<(&'static str, f64)>> {
+        let mut rec = Recorder::new(ctx)?;
+        let mut marks = Marks::Cuts {
+            ctx,
+            passes: Vec::new(),
         };
-        self.record_marked(renderer, rec, &mut marks)?;
-        Ok(marks.names)
+        self.record_marked(renderer, &mut rec, &mut marks)?;
+        let Marks::Cuts { passes, .. } = marks else {
+            unreachable!("the marks were made as cuts")
+        };
+        let mut times = vec![Vec::with_capacity(repeats); passes.len()];
+        for repeat in 0..=repeats {
+            for ((_, pass), times) in passes.iter().zip(&mut times) {
+                let started = std::time::Instant::now();
+                ctx.replay(pass)?;
+                if repeat > 0 {
+                    times.push(started.elapsed().as_secs_f64() * 1e3);
+                }
+            }
+        }
+        Ok(passes
+            .iter()
+            .zip(times)
+            .map(|((name, _), mut t)| {
+                t.sort_by(f64::total_cmp);
+                (*name, t[t.len() / 2])
+            })
+            .collect())
     }
 
     fn record_marked(
@@ -982,25 +1002,30 @@ impl Scene {
         };
         rec.fill_buffer_range(&self.boxes, 16, 8 * n as u64, lo);
         rec.fill_buffer_range(&self.boxes, 16 + 8 * n as u64, 8 * n as u64, hi);
-        // The float gradients need no clearing: the resolve below writes every element
-        // before the shading and depth passes add to them.
+        // The float camera and attribute gradients need no clearing: the resolve below
+        // writes every element before the shading and depth passes add to them.
         for buffer in [
             &self.antialiased,
             &self.partials,
             &self.stats,
             &self.grad_camera_fixed,
             &self.grad_attributes_fixed,
+            &self.grad_object,
         ] {
             rec.fill_buffer(buffer, 0);
         }
-        marks.pass(rec, "clear");
+        // The pose pass visits only the vertex blocks the backward touched, or (when the
+        // shading and depth passes add to every covered vertex) all of them.
+        let shaded = self.lambert.is_some() || self.depth.is_some();
+        rec.fill_buffer(&self.touched, shaded as u32);
+        marks.pass(rec, "clear")?;
         self.record_lambert(renderer, rec, 0);
         self.record_depth(renderer, rec, 0);
-        marks.pass(rec, "shading");
+        marks.pass(rec, "shading")?;
         renderer
             .rasterizer
             .draw(rec, &self.mesh, &self.views, &self.gbuffer)?;
-        marks.pass(rec, "G-buffer");
+        marks.pass(rec, "G-buffer")?;
         // The passes below read ids from a buffer: plain loads are much cheaper than
         // storage-image loads on CPU drivers, and the copy is a memcpy.
         rec.transition(
@@ -1025,7 +1050,7 @@ impl Scene {
             );
         }
         rec.memory_barrier();
-        marks.pass(rec, "id copy, bounds");
+        marks.pass(rec, "id copy, bounds")?;
 
         let work = Groups::Indirect(&self.work_count, 4);
         rec.run_compute(
@@ -1035,7 +1060,7 @@ impl Scene {
             Groups::Indirect(&self.boxes, 0),
         );
         rec.memory_barrier();
-        marks.pass(rec, "classify");
+        marks.pass(rec, "classify")?;
 
         rec.run_compute(
             &renderer.work_args,
@@ -1044,14 +1069,14 @@ impl Scene {
             Groups::Count(1, 1, 1),
         );
         rec.memory_barrier();
-        marks.pass(rec, "work arguments");
+        marks.pass(rec, "work arguments")?;
 
         // The pairs (one walk each), then the antialiased image and its loss.
         for stage in 0..2 {
             let constants = PassConstants { stage, ..constants };
             rec.run_compute(&renderer.antialias, &bindings, &constants, work);
             rec.memory_barrier();
-            marks.pass(rec, ["pairs", "antialias"][stage as usize]);
+            marks.pass(rec, ["pairs", "antialias"][stage as usize])?;
         }
 
         // One workgroup per view loops over its slots, a span per dispatch.
@@ -1074,7 +1099,7 @@ impl Scene {
             );
             rec.memory_barrier();
         }
-        marks.pass(rec, "loss");
+        marks.pass(rec, "loss")?;
         marks.phase(rec, 1);
 
         // The backward twice: the largest terms first, then the fixed-point sums at the
@@ -1086,7 +1111,7 @@ impl Scene {
             marks.pass(
                 rec,
                 ["backward: largest terms", "backward: sums"][stage as usize],
-            );
+            )?;
         }
         let vertices = self.mesh.vertex_count();
         let mut resolve = |fixed: &Buffer, floats: &Buffer, count: u32, max_slot: u32| {
@@ -1105,12 +1130,16 @@ impl Scene {
                 Groups::Count(self.grid(count), 1, 1),
             );
         };
-        resolve(
-            &self.grad_camera_fixed,
-            &self.grad_camera,
-            n * vertices * 3,
-            CAMERA_MAX,
-        );
+        // The camera gradients go to floats here only when the shading or depth passes add
+        // to them; otherwise the pose pass reads the fixed-point sums itself.
+        if shaded {
+            resolve(
+                &self.grad_camera_fixed,
+                &self.grad_camera,
+                n * vertices * 3,
+                CAMERA_MAX,
+            );
+        }
         if self.channels > 0 {
             resolve(
                 &self.grad_attributes_fixed,
@@ -1120,11 +1149,11 @@ impl Scene {
             );
         }
         rec.memory_barrier();
-        marks.pass(rec, "resolve");
+        marks.pass(rec, "resolve")?;
         self.record_lambert(renderer, rec, 1);
         self.record_lambert(renderer, rec, 2);
         self.record_depth(renderer, rec, 1);
-        marks.pass(rec, "shading backward");
+        marks.pass(rec, "shading backward")?;
 
         let pose_bindings = [
             Binding::buffer(self.mesh.positions()),
@@ -1133,6 +1162,9 @@ impl Scene {
             Binding::buffer(&self.grad_object),
             Binding::buffer(&self.grad_pose),
             Binding::buffer(&self.pose_partials),
+            Binding::buffer(&self.grad_camera_fixed),
+            Binding::buffer(&self.work_count),
+            Binding::buffer(&self.touched),
         ];
         let pose = |stage| PoseConstants {
             vertex_count: vertices,
@@ -1140,17 +1172,19 @@ impl Scene {
             groups: self.pose_groups,
             stage,
             subgroups: self.subgroups,
+            from_fixed: !shaded as u32,
+            max_slot: CAMERA_MAX,
+            terms_per_listed: TERMS_PER_LISTED,
         };
         let per_stage = [
-            Groups::Count(self.grid(vertices), 1, 1),
-            Groups::Count(self.pose_groups, 1, n),
+            Groups::Count(self.pose_groups, 1, 1),
             Groups::Count(1, 1, n),
         ];
         for (stage, groups) in per_stage.into_iter().enumerate() {
             rec.run_compute(&renderer.pose, &pose_bindings, &pose(stage as u32), groups);
             rec.memory_barrier();
         }
-        marks.pass(rec, "pose gradient");
+        marks.pass(rec, "pose gradient")?;
         marks.phase(rec, 2);
         Ok(())
     }

@@ -174,26 +174,8 @@ pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
             plain_wall.push(plain_elapsed);
             ratio.push((t[2] - t[0]) / (p[1] - p[0]));
         }
-        // A profile: the same evaluation with a timestamp after every pass.
-        let profile_stamps = Timestamps::new(ctx, vkdr::diff::PROFILE_SLOTS)?;
-        let mut rec = Recorder::new(ctx)?;
-        let names = scene.record_passes(&renderer, &mut rec, &profile_stamps)?;
-        let profiled = rec.finish()?;
-        let mut pass_ms = vec![Vec::new(); names.len()];
-        for repeat in 0..=args.repeats {
-            ctx.replay(&profiled)?;
-            let t = profile_stamps.read_first_ms(names.len() as u32 + 1)?;
-            if repeat > 0 {
-                for (k, times) in pass_ms.iter_mut().enumerate() {
-                    times.push(t[k + 1] - t[k]);
-                }
-            }
-        }
-        let passes: Vec<(&'static str, f64)> = names
-            .into_iter()
-            .zip(pass_ms)
-            .map(|(name, times)| (name, median(times)))
-            .collect();
+        // A profile: each pass of the same evaluation submitted alone.
+        let passes = scene.profile(ctx, &renderer, args.repeats)?;
         eprintln!(
             "      passes: {}",
             passes
