@@ -33,8 +33,8 @@ void add_attribute_term(uint at, float g, int shift) {
     else if (g != 0.0) atomicAdd(grad_attributes_fixed[at], to_fixed(g, shift));
 }
 
-int camera_shift() { return fixed_shift(work_count[CAMERA_MAX], TERMS_PER_LISTED * work_count[0] + TERMS_PER_LISTED); }
-int attribute_shift() { return fixed_shift(work_count[ATTRIBUTE_MAX], TERMS_PER_LISTED * work_count[0] + TERMS_PER_LISTED); }
+int camera_shift() { return listed_shift(work_count[CAMERA_MAX], TERMS_PER_LISTED, work_count[0]); }
+int attribute_shift() { return listed_shift(work_count[ATTRIBUTE_MAX], TERMS_PER_LISTED, work_count[0]); }
 
 // d clip / d camera is (sx, sy, ox, oy): x_clip = sx x + ox z, y_clip = sy y + oy z, w = z.
 void add_clip_gradient(ViewData vd, uint view, uint v, vec3 g_clip) {

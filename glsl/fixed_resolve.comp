@@ -19,9 +19,9 @@ layout(push_constant, std430) uniform Constants {
 
 void main() {
     uint max_bits = work_count[pc.max_slot];
-    int shift = fixed_shift(max_bits, pc.terms_per_listed * work_count[0] + pc.terms_per_listed);
+    int shift = listed_shift(max_bits, pc.terms_per_listed, work_count[0]);
     uint stride = gl_NumWorkGroups.x * gl_WorkGroupSize.x;
     for (uint i = gl_GlobalInvocationID.x; i < pc.count; i += stride) {
-        values[i] = max_bits >= NON_FINITE_BITS ? uintBitsToFloat(0x7fc00000u) : from_fixed(fixed_sum[i], shift);
+        values[i] = resolved(fixed_sum[i], max_bits, shift);
     }
 }

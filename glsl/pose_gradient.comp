@@ -56,16 +56,18 @@ void main() {
         return;
     }
     uint max_bits = work_count[pc.max_slot];
-    int shift = fixed_shift(max_bits, pc.terms_per_listed * work_count[0] + pc.terms_per_listed);
+    int shift = listed_shift(max_bits, pc.terms_per_listed, work_count[0]);
     bool finite = pc.from_fixed == 0u || max_bits < NON_FINITE_BITS;
-    uint blocks = (pc.vertex_count + 63u) / 64u;
+    // A block is one workgroup's worth of vertices (VERTEX_BLOCK in diff_pass.glsl).
+    uint block_size = gl_WorkGroupSize.x;
+    uint blocks = (pc.vertex_count + block_size - 1u) / block_size;
     for (uint view = 0u; view < pc.view_count; ++view) {
         mat3 r = mat3(views[view].object_to_camera);
         mat3 r_transpose = transpose(r);
         vec3 sum_t = vec3(0.0);
         vec3 sum_r = vec3(0.0);
         for (uint block = gl_WorkGroupID.x; block < blocks; block += pc.groups) {
-            uint v = 64u * block + gl_LocalInvocationIndex;
+            uint v = block_size * block + gl_LocalInvocationIndex;
             // (Every block when a term was not finite: then every gradient is NaN, as the
             // resolve makes them, so that callers still see it.)
             if ((finite && touched[block] == 0u) || v >= pc.vertex_count) continue;
@@ -73,11 +75,10 @@ void main() {
             vec3 g;
             if (pc.from_fixed == 0u) {
                 g = vec3(grad_camera[at], grad_camera[at + 1u], grad_camera[at + 2u]);
-            } else if (finite) {
-                g = vec3(from_fixed(grad_camera_fixed[at], shift), from_fixed(grad_camera_fixed[at + 1u], shift),
-                         from_fixed(grad_camera_fixed[at + 2u], shift));
             } else {
-                g = vec3(uintBitsToFloat(0x7fc00000u));  // a term was not finite
+                g = vec3(resolved(grad_camera_fixed[at], max_bits, shift),
+                         resolved(grad_camera_fixed[at + 1u], max_bits, shift),
+                         resolved(grad_camera_fixed[at + 2u], max_bits, shift));
             }
             vec3 go = r_transpose * g;
             if (view > 0u) go = vec3(grad_object[3u * v], grad_object[3u * v + 1u], grad_object[3u * v + 2u]) + go;

@@ -31,4 +31,16 @@ int64_t to_fixed(float x, int shift) { return int64_t(ldexp(x, shift)); }
 
 float from_fixed(int64_t v, int shift) { return ldexp(float(v), -shift); }
 
+// The shift of the backward's sums (antialias_backward.comp): at most `terms_per_listed`
+// terms per listed pixel, `listed` of them (and one pixel's worth of room).
+int listed_shift(uint max_bits, uint terms_per_listed, uint listed) {
+    return fixed_shift(max_bits, terms_per_listed * listed + terms_per_listed);
+}
+
+// A fixed-point sum as a float; NaN when a term was not finite (max_bits at or above
+// NON_FINITE_BITS), so that callers still see it.
+float resolved(int64_t v, uint max_bits, int shift) {
+    return max_bits >= NON_FINITE_BITS ? uintBitsToFloat(0x7fc00000u) : from_fixed(v, shift);
+}
+
 #endif  // FIXED_POINT_GLSL

@@ -924,17 +924,18 @@ impl Scene {
         self.record_marked(renderer, rec, &mut Marks::Phases(timing))
     }
 
-    /// A profile: the medians over `repeats` (after one warm-up) of each pass of
-    /// [`Scene::record`] timed on the host's clock, each pass submitted alone and waited
-    /// for. Timestamps between passes cannot do this on CPU drivers: lavapipe defers a
-    /// draw's rasterization to whichever later command needs its pixels, so its time showed
-    /// up in the passes after it. Each figure includes one submission's overhead.
+    /// A profile: each pass of [`Scene::record`] timed `repeats` times (after one warm-up)
+    /// on the host's clock, each pass submitted alone and waited for; the passes' names and
+    /// their times in milliseconds. Timestamps between passes cannot do this on CPU
+    /// drivers: lavapipe defers a draw's rasterization to whichever later command needs its
+    /// pixels, so its time showed up in the passes after it. Each time includes one
+    /// submission's overhead.
     pub fn profile(
         &self,
         ctx: &Context,
         renderer: &DiffRenderer,
         repeats: usize,
-    ) -> Result<Vec<(&'static str, f64)>> {
+    ) -> Result<Vec<(&'static str, Vec<f64>)>> {
         let mut rec = Recorder::new(ctx)?;
         let mut marks = Marks::Cuts {
             ctx,
@@ -954,14 +955,7 @@ impl Scene {
                 }
             }
         }
-        Ok(passes
-            .iter()
-            .zip(times)
-            .map(|((name, _), mut t)| {
-                t.sort_by(f64::total_cmp);
-                (*name, t[t.len() / 2])
-            })
-            .collect())
+        Ok(passes.iter().map(|(name, _)| *name).zip(times).collect())
     }
 
     fn record_marked(

@@ -33,12 +33,7 @@ impl Timestamps {
 
     /// All slots in milliseconds since an arbitrary origin (after the work completed).
     pub fn read_ms(&self) -> Result<Vec<f64>> {
-        self.read_first_ms(self.count)
-    }
-
-    /// The first `n` slots (all written by the completed work) in milliseconds.
-    pub fn read_first_ms(&self, n: u32) -> Result<Vec<f64>> {
-        let mut ticks = vec![0u64; n.min(self.count) as usize];
+        let mut ticks = vec![0u64; self.count as usize];
         // SAFETY: the submission that wrote the queries has completed (blocking submits).
         unsafe {
             self.ctx.device().get_query_pool_results(

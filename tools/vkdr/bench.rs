@@ -175,7 +175,11 @@ pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
             ratio.push((t[2] - t[0]) / (p[1] - p[0]));
         }
         // A profile: each pass of the same evaluation submitted alone.
-        let passes = scene.profile(ctx, &renderer, args.repeats)?;
+        let passes: Vec<(&'static str, f64)> = scene
+            .profile(ctx, &renderer, args.repeats)?
+            .into_iter()
+            .map(|(name, times)| (name, median(times)))
+            .collect();
         eprintln!(
             "      passes: {}",
             passes
