@@ -24,21 +24,20 @@ layout(set = 0, binding = 6, std430) readonly buffer Observed { float observed[]
 layout(set = 0, binding = 7, std430) readonly buffer Distance { float distance_field[]; };  // [view][y][x]
 layout(set = 0, binding = 8, std430) buffer Antialiased { float antialiased[]; };        // [view][y][x][channel]
 layout(set = 0, binding = 9, std430) buffer Stats { float stats[]; };                   // [view][4]
-layout(set = 0, binding = 12, std430) buffer Partials { float partials[]; };            // [view][slot][3]
-layout(set = 0, binding = 13, std430) buffer Work { uint work[]; };                     // pixel indices
-layout(set = 0, binding = 14, std430) buffer WorkCount { uint work_count[]; };          // count, 3 dispatch args, then the slots below
-layout(set = 0, binding = 15, std430) buffer StatsFixed { int64_t stats_fixed[]; };    // [view][3], fixed point at pc.stats_shift
-layout(set = 0, binding = 16, std430) buffer GradCameraFixed { int64_t grad_camera_fixed[]; };  // [view][vertex][3]
-layout(set = 0, binding = 17, std430) buffer GradAttributesFixed { int64_t grad_attributes_fixed[]; };  // [view][vertex][channel]
-layout(set = 0, binding = 18, std430) buffer Boxes { int boxes[]; };  // see bounds.comp
+layout(set = 0, binding = 12, std430) buffer Work { uint work[]; };                     // pixel indices
+layout(set = 0, binding = 13, std430) buffer WorkCount { uint work_count[]; };          // count, 3 dispatch args, then the slots below
+layout(set = 0, binding = 14, std430) buffer StatsFixed { int64_t stats_fixed[]; };    // [view][3], fixed point at pc.stats_shift
+layout(set = 0, binding = 15, std430) buffer GradCameraFixed { int64_t grad_camera_fixed[]; };  // [view][vertex][3]
+layout(set = 0, binding = 16, std430) buffer GradAttributesFixed { int64_t grad_attributes_fixed[]; };  // [view][vertex][channel]
+layout(set = 0, binding = 17, std430) buffer Boxes { int boxes[]; };  // see bounds.comp
 // The pair records (diff.glsl encode_pair) of each listed pixel p with p + (1, 0) and with
 // p + (0, 1): antialias.comp stage 0 walks to every crossing once and writes them; the
 // antialias and its backward read them instead of walking again.
-layout(set = 0, binding = 19, std430) buffer PairsX { uint pairs_x[]; };  // [view][y][x]
-layout(set = 0, binding = 20, std430) buffer PairsY { uint pairs_y[]; };  // [view][y][x]
+layout(set = 0, binding = 18, std430) buffer PairsX { uint pairs_x[]; };  // [view][y][x]
+layout(set = 0, binding = 19, std430) buffer PairsY { uint pairs_y[]; };  // [view][y][x]
 // Nonzero for each block of VERTEX_BLOCK vertices that got a camera-gradient term
 // (antialias_backward.comp); pose_gradient.comp visits only those blocks.
-layout(set = 0, binding = 21, std430) buffer Touched { uint touched[]; };
+layout(set = 0, binding = 20, std430) buffer Touched { uint touched[]; };
 const uint VERTEX_BLOCK = 64u;
 
 // work_count slots after the count and dispatch arguments (LOST_WALKS = 4 in diff.glsl):
@@ -59,9 +58,8 @@ const uint LOSS_DISTANCE = 2u;
 // stats[4 view + k]: 0 = sum of per-pixel loss terms, 1 = intersection, 2 = union,
 // 3 = the view's loss. antialias.comp adds its terms to stats_fixed (int64 fixed point at
 // pc.stats_shift, chosen on the host from a bound on the sums, so the order of the adds
-// cannot change the result); classify.comp leaves one partial sum per subgroup of a fixed
-// 8 x 8 tile in `partials` (pc.partial_slots slots of 3 per view); loss_finalize.comp adds
-// both in a fixed order and computes the loss.
+// cannot change the result), and so does classify.comp, once per subgroup;
+// loss_finalize.comp computes the loss from those sums.
 
 layout(push_constant, std430) uniform Constants {
     uint channels;  // 0: coverage, else interpolated attributes per vertex
@@ -69,7 +67,6 @@ layout(push_constant, std430) uniform Constants {
     uint vertex_count;
     uint width;
     uint height;
-    uint partial_slots;
     int stats_shift;
     uint stage;  // antialias.comp: 0 finds the pairs, 1 antialiases; its backward: 0
                  // measures the largest terms, 1 adds them

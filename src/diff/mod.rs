@@ -21,8 +21,8 @@ use bytemuck::{Pod, Zeroable};
 
 use crate::error::{Error, Result};
 use crate::gpu::{
-    spans, spirv, Binding, BindingKind, Buffer, BufferKind, ComputePipeline, Context, Groups,
-    ImageState, Recorder, Recording, Timestamps, LOOP_LIMIT,
+    spirv, Binding, BindingKind, Buffer, BufferKind, ComputePipeline, Context, Groups, ImageState,
+    Recorder, Recording, Timestamps,
 };
 use crate::loss::{DistanceField, Loss};
 use crate::mesh::Mesh;
@@ -292,7 +292,6 @@ struct PassConstants {
     vertex_count: u32,
     width: u32,
     height: u32,
-    partial_slots: u32,
     stats_shift: i32,
     stage: u32,
     depth: u32,
@@ -305,10 +304,7 @@ struct PassConstants {
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct FinalizeConstants {
     loss: u32,
-    partial_slots: u32,
     stats_shift: i32,
-    first: u32,
-    end: u32,
 }
 
 #[repr(C)]
@@ -373,7 +369,7 @@ pub struct DiffRenderer {
 impl DiffRenderer {
     pub fn new(ctx: &Context) -> Result<Self> {
         let pass_bytes = std::mem::size_of::<PassConstants>() as u32;
-        let bindings = [BindingKind::StorageBuffer; 22];
+        let bindings = [BindingKind::StorageBuffer; 21];
         Ok(Self {
             rasterizer: Rasterizer::new(ctx)?,
             classify: ComputePipeline::new(
@@ -408,7 +404,7 @@ impl DiffRenderer {
                 ctx,
                 "loss finalize",
                 &spirv(FINALIZE)?,
-                &bindings[..3],
+                &bindings[..2],
                 std::mem::size_of::<FinalizeConstants>() as u32,
             )?,
             pose: ComputePipeline::new(
@@ -494,8 +490,6 @@ pub struct Scene {
     /// Per view, the box of pixels that classify.comp visits (`glsl/bounds.comp`).
     boxes: Buffer,
     stats_shift: i32,
-    partials: Buffer,
-    partial_slots: u32,
     work: Buffer,
     work_count: Buffer,
     grad_camera: Buffer,
@@ -745,9 +739,7 @@ impl Scene {
         };
         let device = |name, bytes| Buffer::new(ctx, name, bytes, BufferKind::Device);
         let with_distance = desc.loss == Loss::Distance;
-        // One partial loss sum per subgroup of every 8 x 8 workgroup.
         let subgroups = 64u32.div_ceil(ctx.info().subgroup_size.max(1));
-        let partial_slots = w.div_ceil(8) * h.div_ceil(8) * subgroups;
         let stats_shift = stats_shift(desc, w, h);
         let grid_groups = ctx.info().grid_groups.max(1);
         let pose_groups = (vertices as u32)
@@ -775,8 +767,6 @@ impl Scene {
             background: device("background loss stats", n as u64 * 24)?,
             boxes: device("pixel boxes", box_words(n) * 4)?,
             stats_shift,
-            partials: device("loss partial sums", n as u64 * partial_slots as u64 * 12)?,
-            partial_slots,
             work: device("work list", pixels * 4)?,
             work_count: device("work count", WORK_COUNT_WORDS * 4)?,
             grad_camera: device("camera gradients", n as u64 * vertices * 12)?,
@@ -860,7 +850,7 @@ impl Scene {
     }
 
     /// The bindings of the per-pixel passes (`glsl/include/diff_pass.glsl`).
-    fn pass_bindings(&self) -> [Binding<'_>; 22] {
+    fn pass_bindings(&self) -> [Binding<'_>; 21] {
         [
             Binding::buffer(self.mesh.positions()),
             Binding::buffer(self.mesh.triangles()),
@@ -874,7 +864,6 @@ impl Scene {
             Binding::buffer(&self.stats),
             Binding::buffer(&self.grad_camera),
             Binding::buffer(&self.grad_attributes),
-            Binding::buffer(&self.partials),
             Binding::buffer(&self.work),
             Binding::buffer(&self.work_count),
             Binding::buffer(&self.stats_fixed),
@@ -901,7 +890,6 @@ impl Scene {
             vertex_count: self.mesh.vertex_count(),
             width: self.views.width(),
             height: self.views.height(),
-            partial_slots: self.partial_slots,
             stats_shift: self.stats_shift,
             stage,
             depth: self.depth.is_some() as u32,
@@ -1000,7 +988,6 @@ impl Scene {
         // writes every element before the shading and depth passes add to them.
         for buffer in [
             &self.antialiased,
-            &self.partials,
             &self.stats,
             &self.grad_camera_fixed,
             &self.grad_attributes_fixed,
@@ -1073,26 +1060,19 @@ impl Scene {
             marks.pass(rec, ["pairs", "antialias"][stage as usize])?;
         }
 
-        // One workgroup per view loops over its slots, a span per dispatch.
-        for (first, end) in spans(self.partial_slots, 64 * (LOOP_LIMIT / 4)) {
-            rec.run_compute(
-                &renderer.finalize,
-                &[
-                    Binding::buffer(&self.stats),
-                    Binding::buffer(&self.partials),
-                    Binding::buffer(&self.stats_fixed),
-                ],
-                &FinalizeConstants {
-                    loss: self.loss.code(),
-                    partial_slots: self.partial_slots,
-                    stats_shift: self.stats_shift,
-                    first,
-                    end,
-                },
-                Groups::Count(1, 1, n),
-            );
-            rec.memory_barrier();
-        }
+        rec.run_compute(
+            &renderer.finalize,
+            &[
+                Binding::buffer(&self.stats),
+                Binding::buffer(&self.stats_fixed),
+            ],
+            &FinalizeConstants {
+                loss: self.loss.code(),
+                stats_shift: self.stats_shift,
+            },
+            Groups::Count(1, 1, n),
+        );
+        rec.memory_barrier();
         marks.pass(rec, "loss")?;
         marks.phase(rec, 1);
 
