@@ -33,8 +33,9 @@ void add_attribute_term(uint at, float g, int shift) {
     else if (g != 0.0) atomicAdd(grad_attributes_fixed[at], to_fixed(g, shift));
 }
 
-int camera_shift() { return listed_shift(work_count[CAMERA_MAX], TERMS_PER_LISTED, work_count[0]); }
-int attribute_shift() { return listed_shift(work_count[ATTRIBUTE_MAX], TERMS_PER_LISTED, work_count[0]); }
+// The scales of stage 1's sums (read once per invocation in main).
+int camera_shift = 0;
+int attribute_shift = 0;
 
 // d clip / d camera is (sx, sy, ox, oy): x_clip = sx x + ox z, y_clip = sy y + oy z, w = z.
 void add_clip_gradient(ViewData vd, uint view, uint v, vec3 g_clip) {
@@ -43,10 +44,9 @@ void add_clip_gradient(ViewData vd, uint view, uint v, vec3 g_clip) {
     vec3 g = vec3(s.x * g_clip.x, s.y * g_clip.y, o.x * g_clip.x + o.y * g_clip.y + g_clip.z);
     uint at = 3u * (view * pc.vertex_count + v);
     if (pc.stage == 1u) touched[v / VERTEX_BLOCK] = 1u;
-    int shift = camera_shift();
-    add_camera_term(at, g.x, shift);
-    add_camera_term(at + 1u, g.y, shift);
-    add_camera_term(at + 2u, g.z, shift);
+    add_camera_term(at, g.x, camera_shift);
+    add_camera_term(at + 1u, g.y, camera_shift);
+    add_camera_term(at + 2u, g.z, camera_shift);
 }
 
 void crossing_backward(ViewData vd, uint view, Pair pair) {
@@ -61,7 +61,7 @@ void crossing_backward(ViewData vd, uint view, Pair pair) {
     float d = c.ef - c.eb;
     float g_ef = g_alpha * -c.eb / (d * d);
     float g_eb = g_alpha * c.ef / (d * d);
-    Triangle tri = load_triangle(vd, c.triangle);
+    Triangle tri = c.tri;
     int i = (c.edge + 1) % 3;
     int j = (c.edge + 2) % 3;
     vec3 gi = vec3(0.0);
@@ -113,7 +113,7 @@ void handle_pixel(uint index) {
     vec3 g_b = vec3(0.0);
     for (int k = 0; k < 3; ++k) {
         for (uint ch = 0u; ch < pc.channels; ++ch) {
-            add_attribute_term(attribute_index(view, tri.v[k], ch), b[k] * g_colour[ch], attribute_shift());
+            add_attribute_term(attribute_index(view, tri.v[k], ch), b[k] * g_colour[ch], attribute_shift);
             g_b[k] += g_colour[ch] * attributes[attribute_index(view, tri.v[k], ch)];
         }
     }
@@ -128,6 +128,10 @@ void handle_pixel(uint index) {
 
 void main() {
     uint count = work_count[0];
+    if (pc.stage == 1u) {
+        camera_shift = listed_shift(work_count[CAMERA_MAX], TERMS_PER_LISTED, count);
+        attribute_shift = listed_shift(work_count[ATTRIBUTE_MAX], TERMS_PER_LISTED, count);
+    }
     uint stride = gl_NumWorkGroups.x * gl_WorkGroupSize.x;
     uint done = 0u;
     for (uint i = gl_GlobalInvocationID.x; i < count; i += stride) {

@@ -114,6 +114,7 @@ struct Crossing {
     bool lost;    // the walk reached MAX_WALK or met an inconsistent neighbour table
     bool missed;  // the segment's line misses the first triangle
     uint triangle;
+    Triangle tri;  // that triangle, loaded
     int edge;  // opposite corner `edge`: corners (edge + 1) % 3 and (edge + 2) % 3
     float alpha;
     float ef;
@@ -143,10 +144,13 @@ Crossing find_crossing(ViewData vd, uint t, vec2 pf, vec2 pb) {
     vec2 d = pb - pf;
     uint current = t;
     uvec2 entry = uvec2(NO_VERTEX);  // the vertices of the edge the walk came in by
+    // Each triangle is loaded once: the next one is loaded to test its facing and then
+    // walked through.
+    Triangle tri = load_triangle(vd, current);
+    // The triangle's orientation on screen; det(clip corners) = sx sy det(camera corners).
+    // The same on every triangle the walk enters (it stops at the first that differs).
+    float inside = facing(tri);
     for (int step = 0; step < MAX_WALK; ++step) {
-        Triangle tri = load_triangle(vd, current);
-        // The triangle's orientation on screen; det(clip corners) = sx sy det(camera corners).
-        float inside = facing(tri);
         bvec3 left = bvec3(left_of_line(tri.clip[0], pf, d), left_of_line(tri.clip[1], pf, d),
                            left_of_line(tri.clip[2], pf, d));
         int exit_edge = -1;
@@ -190,9 +194,15 @@ Crossing find_crossing(ViewData vd, uint t, vec2 pf, vec2 pb) {
         // The segment ends before the exit: pb is on this surface, no silhouette between.
         if (eb * inside >= 0.0) return c;
         uint next = neighbours[3u * current + uint(exit_edge)];
-        bool silhouette = next == NO_NEIGHBOUR || facing(load_triangle(vd, next)) != inside;
+        Triangle next_tri;
+        bool silhouette = next == NO_NEIGHBOUR;
+        if (!silhouette) {
+            next_tri = load_triangle(vd, next);
+            silhouette = facing(next_tri) != inside;
+        }
         if (silhouette) {
             c.found = true;
+            c.tri = tri;
             c.triangle = current;
             c.edge = exit_edge;
             c.alpha = ef / (ef - eb);
@@ -202,6 +212,7 @@ Crossing find_crossing(ViewData vd, uint t, vec2 pf, vec2 pb) {
         }
         entry = uvec2(tri.v[(exit_edge + 1) % 3], tri.v[(exit_edge + 2) % 3]);
         current = next;
+        tri = next_tri;
     }
     c.lost = true;
     return c;
@@ -270,8 +281,7 @@ Pair make_pair(ViewData vd, uint view, ivec2 p, ivec2 q, bool along_x) {
     pair.lost = c.lost;
     pair.missed = c.missed;
     if (!c.found) return pair;
-    Triangle edge_tri = load_triangle(vd, c.triangle);
-    if (handled_along_x(edge_tri, c.edge, vd) != along_x) return pair;
+    if (handled_along_x(c.tri, c.edge, vd) != along_x) return pair;
     pair.valid = true;
     pair.crossing = c;
     place_crossing(pair, c.ef, c.eb);
@@ -307,9 +317,9 @@ Pair decode_pair(ViewData vd, ivec2 p, ivec2 q, bool along_x, uint record) {
     pair.crossing.missed = false;
     pair.crossing.triangle = record & PAIR_TRIANGLE;
     pair.crossing.edge = int((record >> 28u) & 3u);
-    Triangle tri = load_triangle(vd, pair.crossing.triangle);
-    float ef = walk_edge_function(tri, pair.crossing.edge, pixel_ndc(pair.f, vd));
-    float eb = walk_edge_function(tri, pair.crossing.edge, pixel_ndc(pair.g, vd));
+    pair.crossing.tri = load_triangle(vd, pair.crossing.triangle);
+    float ef = walk_edge_function(pair.crossing.tri, pair.crossing.edge, pixel_ndc(pair.f, vd));
+    float eb = walk_edge_function(pair.crossing.tri, pair.crossing.edge, pixel_ndc(pair.g, vd));
     place_crossing(pair, ef, eb);
     return pair;
 }
