@@ -10,24 +10,29 @@
 
 layout(local_size_x = 64) in;
 
-uint pair_record(uint view, ivec2 p, ivec2 size, int s) {
+// The record of the pair of p with p + STEPS[s] (s = 0 or 1); its alpha in `alpha`.
+uint pair_record(uint view, ivec2 p, ivec2 size, int s, out float alpha) {
+    alpha = 0.0;
     ivec2 q = p + STEPS[s];
     if (any(greaterThanEqual(q, size)) || !pair_matters(id_at(p, view), id_at(q, view))) return 0u;
     Pair pair = make_pair(views[view], view, p, q, s == 0);
     if (pair.lost) atomicAdd(work_count[LOST_WALKS], 1u);
     if (pair.missed) atomicAdd(work_count[MISSED_STARTS], 1u);
+    if (pair.valid) alpha = pair.crossing.alpha;
     return encode_pair(pair, p);
 }
 
 vec4 antialiased_value(uint view, ivec2 p, ivec2 size, uint id) {
-    ViewData vd = views[view];
+    // Only interpolation needs the camera (colour_at); coverage is 0 or 1.
+    ViewData vd;
+    if (pc.channels > 0u) vd = views[view];
     vec4 c = colour_at(vd, view, p, id);
     vec4 a = c;
     for (int s = 0; s < 4; ++s) {
         ivec2 q = p + STEPS[s];
         if (any(lessThan(q, ivec2(0))) || any(greaterThanEqual(q, size))) continue;
         if (!pair_matters(id_at(p, view), id_at(q, view))) continue;
-        Pair pair = pair_at(vd, view, p, s);
+        Pair pair = pair_weight_at(view, p, s);
         if (!pair.valid) continue;
         ivec2 affected = pair.affects_g ? pair.g : pair.f;
         if (affected != p) continue;
@@ -48,8 +53,8 @@ void main() {
         uint view = view_of(index);
         ivec2 p = pixel_of(index);
         if (pc.stage == 0u) {
-            pairs_x[index] = pair_record(view, p, size, 0);
-            pairs_y[index] = pair_record(view, p, size, 1);
+            pairs_x[index] = pair_record(view, p, size, 0, alphas_x[index]);
+            pairs_y[index] = pair_record(view, p, size, 1, alphas_y[index]);
             continue;
         }
         vec4 a = antialiased_value(view, p, size, ids[index]);

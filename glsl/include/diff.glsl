@@ -303,6 +303,26 @@ uint encode_pair(Pair pair, ivec2 p) {
         | pair.crossing.triangle;
 }
 
+// The pair (p, q) from its record and its crossing's alpha, as far as antialiasing needs
+// it: which pixel is in front, alpha and what place_crossing derives from alpha (the
+// backward needs the edge's vertices too: decode_pair).
+Pair decode_pair_weight(ivec2 p, ivec2 q, uint record, float alpha) {
+    Pair pair;
+    pair.valid = (record & PAIR_VALID) != 0u;
+    pair.lost = false;
+    pair.missed = false;
+    pair.clamped = false;
+    if (!pair.valid) return pair;
+    bool p_front = (record & PAIR_P_FRONT) != 0u;
+    pair.f = p_front ? p : q;
+    pair.g = p_front ? q : p;
+    pair.crossing.alpha = alpha;
+    pair.clamped = alpha < 0.0;
+    pair.affects_g = alpha > 0.5;
+    pair.weight = abs(max(alpha, 0.0) - 0.5);
+    return pair;
+}
+
 Pair decode_pair(ViewData vd, ivec2 p, ivec2 q, bool along_x, uint record) {
     Pair pair;
     pair.valid = (record & PAIR_VALID) != 0u;

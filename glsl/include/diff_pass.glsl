@@ -38,6 +38,10 @@ layout(set = 0, binding = 19, std430) buffer PairsY { uint pairs_y[]; };  // [vi
 // Nonzero for each block of VERTEX_BLOCK vertices that got a camera-gradient term
 // (antialias_backward.comp); pose_gradient.comp visits only those blocks.
 layout(set = 0, binding = 20, std430) buffer Touched { uint touched[]; };
+// Each valid pair's crossing parameter alpha beside its record (what antialiasing needs:
+// pair_weight_at), [view][y][x].
+layout(set = 0, binding = 21, std430) buffer AlphasX { float alphas_x[]; };
+layout(set = 0, binding = 22, std430) buffer AlphasY { float alphas_y[]; };
 const uint VERTEX_BLOCK = 64u;
 
 // work_count slots after the count and dispatch arguments (LOST_WALKS = 4 in diff.glsl):
@@ -140,6 +144,16 @@ Pair pair_at(ViewData vd, uint view, ivec2 p, int s) {
     uint index = pixel_index(first, view);
     uint record = (s % 2 == 0) ? pairs_x[index] : pairs_y[index];
     return s < 2 ? decode_pair(vd, p, q, s == 0, record) : decode_pair(vd, q, p, s == 2, record);
+}
+
+// The same pair as far as antialiasing needs it (decode_pair_weight: no triangle loaded).
+Pair pair_weight_at(uint view, ivec2 p, int s) {
+    ivec2 q = p + STEPS[s];
+    ivec2 first = s < 2 ? p : q;
+    uint index = pixel_index(first, view);
+    uint record = (s % 2 == 0) ? pairs_x[index] : pairs_y[index];
+    float alpha = (s % 2 == 0) ? alphas_x[index] : alphas_y[index];
+    return s < 2 ? decode_pair_weight(p, q, record, alpha) : decode_pair_weight(q, p, record, alpha);
 }
 
 vec4 load_antialiased(uint index) {

@@ -369,7 +369,7 @@ pub struct DiffRenderer {
 impl DiffRenderer {
     pub fn new(ctx: &Context) -> Result<Self> {
         let pass_bytes = std::mem::size_of::<PassConstants>() as u32;
-        let bindings = [BindingKind::StorageBuffer; 21];
+        let bindings = [BindingKind::StorageBuffer; 23];
         Ok(Self {
             rasterizer: Rasterizer::new(ctx)?,
             classify: ComputePipeline::new(
@@ -513,6 +513,9 @@ pub struct Scene {
     /// (`encode_pair` in `glsl/include/diff.glsl`), `[view][y][x]`.
     pairs_x: Buffer,
     pairs_y: Buffer,
+    /// Each valid pair's crossing parameter alpha, beside its record.
+    alphas_x: Buffer,
+    alphas_y: Buffer,
     loss: Loss,
     /// Channels of every vertex's attributes (0: coverage without attributes).
     channels: u32,
@@ -795,6 +798,8 @@ impl Scene {
             ids: device("triangle ids", pixels * 4)?,
             pairs_x: device("pixel pairs along x", pixels * 4)?,
             pairs_y: device("pixel pairs along y", pixels * 4)?,
+            alphas_x: device("pixel-pair crossings along x", pixels * 4)?,
+            alphas_y: device("pixel-pair crossings along y", pixels * 4)?,
             mesh,
             views,
             loss: desc.loss,
@@ -850,7 +855,7 @@ impl Scene {
     }
 
     /// The bindings of the per-pixel passes (`glsl/include/diff_pass.glsl`).
-    fn pass_bindings(&self) -> [Binding<'_>; 21] {
+    fn pass_bindings(&self) -> [Binding<'_>; 23] {
         [
             Binding::buffer(self.mesh.positions()),
             Binding::buffer(self.mesh.triangles()),
@@ -873,6 +878,8 @@ impl Scene {
             Binding::buffer(&self.pairs_x),
             Binding::buffer(&self.pairs_y),
             Binding::buffer(&self.touched),
+            Binding::buffer(&self.alphas_x),
+            Binding::buffer(&self.alphas_y),
         ]
     }
 

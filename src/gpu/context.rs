@@ -81,6 +81,9 @@ pub struct DeviceInfo {
     pub max_compute_workgroup_invocations: u32,
     pub max_compute_workgroup_count: [u32; 3],
     pub max_push_constants_size: u32,
+    /// Descriptors one push-descriptor set can hold (every pipeline's bindings are pushed).
+    pub max_push_descriptors: u32,
+    pub max_per_stage_storage_buffers: u32,
     pub subgroup_size: u32,
     /// Workgroups of 64 invocations that a grid-stride pass (one that loops over its
     /// items with the grid's size as stride) is dispatched with at most: enough to fill a
@@ -562,9 +565,11 @@ fn describe(instance: &ash::Instance, pd: vk::PhysicalDevice, index: usize) -> D
     unsafe {
         let mut driver = vk::PhysicalDeviceDriverProperties::default();
         let mut subgroup = vk::PhysicalDeviceSubgroupProperties::default();
+        let mut push = vk::PhysicalDevicePushDescriptorPropertiesKHR::default();
         let mut props2 = vk::PhysicalDeviceProperties2::default()
             .push_next(&mut driver)
-            .push_next(&mut subgroup);
+            .push_next(&mut subgroup)
+            .push_next(&mut push);
         instance.get_physical_device_properties2(pd, &mut props2);
         let props = props2.properties;
         let limits = props.limits;
@@ -594,6 +599,8 @@ fn describe(instance: &ash::Instance, pd: vk::PhysicalDevice, index: usize) -> D
             max_compute_workgroup_invocations: limits.max_compute_work_group_invocations,
             max_compute_workgroup_count: limits.max_compute_work_group_count,
             max_push_constants_size: limits.max_push_constants_size,
+            max_push_descriptors: push.max_push_descriptors,
+            max_per_stage_storage_buffers: limits.max_per_stage_descriptor_storage_buffers,
             subgroup_size: subgroup.subgroup_size,
             grid_groups: grid_groups(props.device_type),
             timestamp_period_ns: limits.timestamp_period,

@@ -3,8 +3,8 @@
 
 use ash::vk;
 
-use super::{vk_err, Buffer, Context, Format, Image};
-use crate::error::Result;
+use super::{vk_err, Buffer, Context, DeviceInfo, Format, Image};
+use crate::error::{Error, Result};
 
 /// The kind of resource a pipeline binding (set 0, binding = position) takes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -55,6 +55,7 @@ impl PipelineCommon {
         push_constant_bytes: u32,
         stages: vk::ShaderStageFlags,
     ) -> Result<(vk::DescriptorSetLayout, vk::PipelineLayout)> {
+        check_layout_fits(ctx.info(), bindings, push_constant_bytes)?;
         let device = ctx.device();
         let raw_bindings: Vec<_> = bindings
             .iter()
@@ -90,6 +91,42 @@ impl PipelineCommon {
             .map_err(vk_err("vkCreatePipelineLayout"))?;
         Ok((set_layout, layout))
     }
+}
+
+/// An error naming the device limit a pipeline's bindings or push constants pass.
+fn check_layout_fits(info: &DeviceInfo, bindings: &[BindingKind], push_bytes: u32) -> Result<()> {
+    let buffers = bindings
+        .iter()
+        .filter(|b| matches!(b, BindingKind::StorageBuffer))
+        .count() as u32;
+    let checks = [
+        (
+            bindings.len() as u32,
+            info.max_push_descriptors,
+            "bindings",
+            "maxPushDescriptors",
+        ),
+        (
+            buffers,
+            info.max_per_stage_storage_buffers,
+            "storage buffers",
+            "maxPerStageDescriptorStorageBuffers",
+        ),
+        (
+            push_bytes,
+            info.max_push_constants_size,
+            "bytes of push constants",
+            "maxPushConstantsSize",
+        ),
+    ];
+    for (need, limit, what, name) in checks {
+        if need > limit {
+            return Err(Error::Limit(format!(
+                "a pipeline needs {need} {what}, more than the device's {name} of {limit}"
+            )));
+        }
+    }
+    Ok(())
 }
 
 impl Drop for PipelineCommon {
@@ -262,5 +299,40 @@ impl GraphicsPipeline {
                 stages,
             },
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn layouts_past_the_device_limits_are_refused_by_name() {
+        let ctx = Context::new().expect("a Vulkan device");
+        let mut info = ctx.info().clone();
+        let buffers = [BindingKind::StorageBuffer; 6];
+        assert!(check_layout_fits(&info, &buffers, 16).is_ok());
+        info.max_push_descriptors = 5;
+        let message = check_layout_fits(&info, &buffers, 16)
+            .unwrap_err()
+            .to_string();
+        assert!(message.contains("maxPushDescriptors of 5"), "{message}");
+        info.max_push_descriptors = 32;
+        info.max_per_stage_storage_buffers = 4;
+        let message = check_layout_fits(&info, &buffers, 16)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            message.contains("maxPerStageDescriptorStorageBuffers"),
+            "{message}"
+        );
+        info.max_per_stage_storage_buffers = 32;
+        let message = check_layout_fits(&info, &buffers, 4096)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            message.contains("4096 bytes of push constants"),
+            "{message}"
+        );
     }
 }
