@@ -21,9 +21,8 @@ pub fn run(source: &Path, target: &Path, params: &CpdParams, out: &Path) -> Resu
         x.len(),
         ctx.info().name
     );
-    let max = params.max_iterations;
     let result = cpd::register(&ctx, &pipelines, &y, &x, params, &mut |i, s2| {
-        eprint!("\r  iteration {i:>4}/{max}  sigma^2 {s2:.3e}   ");
+        eprint!("\r  iteration {i:>4}  sigma^2 {s2:.3e}   ");
     })?;
     eprintln!();
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
@@ -43,6 +42,8 @@ pub fn run(source: &Path, target: &Path, params: &CpdParams, out: &Path) -> Resu
         "kernel_products": result.products,
         "limited_m_steps": result.limited,
         "jumps": result.jumps,
+        "coarse_points": result.coarse_points,
+        "coarse_iterations": result.coarse_iterations,
         "beta": params.beta,
         "lambda": params.lambda,
         "w": params.w,
