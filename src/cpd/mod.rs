@@ -308,7 +308,7 @@ pub fn run_from(
             sigma2,
         },
         Some(start) => {
-            if start.w.len() != m || !(start.sigma2 > 0.0) {
+            if start.w.len() != m || start.sigma2.is_nan() || start.sigma2 <= 0.0 {
                 return Err(Error::InvalidInput(format!(
                     "a CPD start needs {m} coefficients and sigma^2 > 0, not {} and {}",
                     start.w.len(),
