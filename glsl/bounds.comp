@@ -4,7 +4,7 @@
 // the loss outside them were summed once per observation, see loss_excess).
 //
 // boxes[] (int):
-//   0..2          indirect dispatch of classify.comp (x, y, z groups of 8 x 32 pixels);
+//   0..2          indirect dispatch of classify.comp (x, y, z groups of 8 x 128 pixels);
 //   4 + 2 v       smallest projected vertex pixel (x, y) of view v, atomicMin;
 //   4 + 2 n + 2 v largest, atomicMax (the host fills both before stage 0);
 //   4 + 4 n + 4 v the view's box: first column, first row, width, height.
@@ -68,7 +68,7 @@ void main() {
         boxes[at + 1u] = first.y;
         boxes[at + 2u] = extent.x;
         boxes[at + 3u] = extent.y;
-        groups = max(groups, (extent + ivec2(7, 31)) / ivec2(8, 32));
+        groups = max(groups, (extent + ivec2(7, 127)) / ivec2(8, 128));
     }
     boxes[0] = groups.x;
     boxes[1] = groups.y;

@@ -26,11 +26,12 @@ void background_terms() {
     }
 }
 
-// Each invocation classifies a column of ROWS pixels (a workgroup an 8 x (8 ROWS) tile):
-// the ids above and below each pixel are its column neighbours' own, so an invocation
-// loads 3 ROWS + 2 ids instead of 5 ROWS (per-lane buffer loads are what a CPU driver
-// pays for).
-const int ROWS = 4;
+// Each invocation classifies a column of ROWS pixels (a workgroup a tile of 8 x (8 ROWS)),
+// walking down it with the ids above, at and below the current pixel in hand: 3 id loads
+// per pixel instead of 5, and a CPU driver's cost per invocation (on lavapipe about that
+// of classifying a pixel) paid once per ROWS pixels. Listed rows are bits of a mask until
+// the work list is appended to, once per subgroup.
+const int ROWS = 16;
 
 void main() {
     if (pc.stage == 1u) {
@@ -43,59 +44,45 @@ void main() {
     ivec2 extent = ivec2(boxes[box + 2u], boxes[box + 3u]);
     ivec2 local = ivec2(gl_GlobalInvocationID.x, gl_GlobalInvocationID.y * uint(ROWS));
     ivec2 top = ivec2(boxes[box], boxes[box + 1u]) + local;
-    // ids[r + 1] is row top.y + r of this column (r = -1 .. ROWS); at the image border the
-    // pixel itself stands in for its missing neighbour.
-    uint column[ROWS + 2];
-    uint left[ROWS];
-    uint right[ROWS];
-    bool inside[ROWS];
-    uint index[ROWS];
-    for (int r = 0; r < ROWS; ++r) {
-        ivec2 p = top + ivec2(0, r);
-        inside[r] = local.x < extent.x && local.y + r < extent.y;
-        index[r] = inside[r] ? pixel_index(p, view) : 0u;
-        column[r + 1] = inside[r] ? ids[index[r]] : 0u;
-    }
-    for (int r = 0; r < ROWS; ++r) {
-        if (!inside[r]) continue;
-        ivec2 p = top + ivec2(0, r);
-        left[r] = p.x > 0 ? ids[index[r] - 1u] : column[r + 1];
-        right[r] = p.x + 1 < size.x ? ids[index[r] + 1u] : column[r + 1];
-    }
-    // Rows inside the box are a prefix; the one below the last of them is loaded too.
-    int rows = 0;
-    for (int r = 0; r < ROWS; ++r) rows += int(inside[r]);
-    if (rows > 0) {
-        column[0] = top.y > 0 ? ids[index[0] - pc.width] : column[1];
-        uint last = index[rows - 1];
-        column[rows + 1] = top.y + rows < size.y ? ids[last + pc.width] : column[rows];
-    }
-
-    bool listed[ROWS];
-    uint count = 0u;
+    // Rows of this column inside the box (at the image border the pixel itself stands in
+    // for its missing neighbour).
+    int rows = local.x < extent.x ? clamp(extent.y - local.y, 0, ROWS) : 0;
+    uint first = rows > 0 ? pixel_index(top, view) : 0u;
+    uint id = rows > 0 ? ids[first] : 0u;
+    uint up = rows > 0 && top.y > 0 ? ids[first - pc.width] : id;
+    uint listed = 0u;  // bit r: row r is listed
     vec3 terms = vec3(0.0);
-    for (int r = 0; r < ROWS; ++r) {
-        uint id = column[r + 1];
-        bool any_pair = pair_matters(id, right[r]) || pair_matters(id, left[r])
-            || pair_matters(id, column[r + 2]) || pair_matters(id, column[r]);
-        listed[r] = inside[r] && (any_pair || (pc.channels > 0u && id != 0u));
-        if (inside[r] && !listed[r] && id != 0u) {
+    for (int r = 0; r < rows; ++r) {
+        uint index = first + uint(r) * pc.width;
+        int y = top.y + r;
+        uint down = y + 1 < size.y ? ids[index + pc.width] : id;
+        uint left = top.x > 0 ? ids[index - 1u] : id;
+        uint right = top.x + 1 < size.x ? ids[index + 1u] : id;
+        bool any_pair = pair_matters(id, right) || pair_matters(id, left) || pair_matters(id, down)
+            || pair_matters(id, up);
+        if (any_pair || (pc.channels > 0u && id != 0u)) {
+            listed |= 1u << uint(r);
+        } else if (id != 0u) {
             // Covered, against a mask: one channel, no interpolation.
-            antialiased[index[r]] = 1.0;
-            terms += loss_excess(index[r], vec4(1.0, 0.0, 0.0, 0.0));
+            antialiased[index] = 1.0;
+            terms += loss_excess(index, vec4(1.0, 0.0, 0.0, 0.0));
         }
         // Background away from the object: value 0 (the whole image is cleared before),
         // no excess.
-        count += uint(listed[r]);
+        up = id;
+        id = down;
     }
 
     // One slot range per subgroup in the work list, then each invocation's pixels in order.
+    uint count = bitCount(listed);
     uint total = subgroupAdd(count);
     uint base = 0u;
     if (subgroupElect() && total > 0u) base = atomicAdd(work_count[0], total);
     base = subgroupBroadcastFirst(base) + subgroupExclusiveAdd(count);
-    for (int r = 0; r < ROWS; ++r) {
-        if (listed[r]) work[base++] = index[r];
+    while (listed != 0u) {
+        int r = findLSB(listed);
+        listed &= listed - 1u;
+        work[base++] = first + uint(r) * pc.width;
     }
 
     terms = subgroupAdd(terms);
