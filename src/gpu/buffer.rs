@@ -1,10 +1,12 @@
 //! Buffers in device memory through gpu-allocator, with upload and readback.
 
+use std::sync::{Arc, Mutex};
+
 use ash::vk;
 use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme};
 use gpu_allocator::MemoryLocation;
 
-use super::{vk_err, Context, Recorder};
+use super::{vk_err, Context, Held, Recorder};
 use crate::error::{Error, Result};
 
 /// Where a buffer lives and what it is for.
@@ -18,13 +20,32 @@ pub enum BufferKind {
     Readback,
 }
 
-/// A Vulkan buffer with its memory. Freed in `Drop` (see the lifetime model in `gpu`).
+/// A Vulkan buffer with its memory, freed when the buffer and every [`super::Recording`]
+/// that uses it are gone (see the lifetime model in `gpu`).
 pub struct Buffer {
-    ctx: Context,
+    memory: Arc<BufferMemory>,
     pub(crate) raw: vk::Buffer,
-    allocation: Option<Allocation>,
     size: u64,
     name: String,
+}
+
+/// What a [`Buffer`] owns on the device; shared with the recordings that use it.
+struct BufferMemory {
+    ctx: Context,
+    raw: vk::Buffer,
+    allocation: Mutex<Option<Allocation>>,
+}
+
+impl Drop for BufferMemory {
+    fn drop(&mut self) {
+        // SAFETY: the buffer and every recording that used it are gone, and submissions
+        // block until the device is done, so no work uses the buffer any more.
+        unsafe { self.ctx.device().destroy_buffer(self.raw, None) };
+        let allocation = self.allocation.get_mut().map(Option::take);
+        if let Ok(Some(allocation)) = allocation {
+            let _ = self.ctx.with_allocator(|a| a.free(allocation));
+        }
+    }
 }
 
 impl Buffer {
@@ -79,12 +100,24 @@ impl Buffer {
             .map_err(vk_err("vkBindBufferMemory"))?;
         ctx.name_object(raw, name);
         Ok(Self {
-            ctx: ctx.clone(),
+            memory: Arc::new(BufferMemory {
+                ctx: ctx.clone(),
+                raw,
+                allocation: Mutex::new(Some(allocation)),
+            }),
             raw,
-            allocation: Some(allocation),
             size,
             name: name.into(),
         })
+    }
+
+    /// A share in the buffer's memory, for a recording that uses it.
+    pub(crate) fn held(&self) -> Held {
+        self.memory.clone()
+    }
+
+    fn ctx(&self) -> &Context {
+        &self.memory.ctx
     }
 
     /// A device buffer holding `data`.
@@ -103,22 +136,15 @@ impl Buffer {
         &self.name
     }
 
-    /// The mapped bytes when the memory is host-visible and coherent (lavapipe: always).
-    fn mapped(&mut self) -> Option<&mut [u8]> {
-        let allocation = self.allocation.as_mut()?;
+    /// `f` of the mapped bytes when the memory is host-visible and coherent (lavapipe:
+    /// always), else None.
+    fn with_mapped<R>(&self, f: impl FnOnce(&mut [u8]) -> R) -> Option<R> {
+        let mut allocation = self.memory.allocation.lock().ok()?;
+        let allocation = allocation.as_mut()?;
         let coherent = allocation
             .memory_properties()
             .contains(vk::MemoryPropertyFlags::HOST_COHERENT);
-        allocation.mapped_slice_mut().filter(|_| coherent)
-    }
-
-    /// The mapped bytes for reading, when host-visible and coherent.
-    fn mapped_for_reading(&self) -> Option<&[u8]> {
-        let allocation = self.allocation.as_ref()?;
-        let coherent = allocation
-            .memory_properties()
-            .contains(vk::MemoryPropertyFlags::HOST_COHERENT);
-        allocation.mapped_slice().filter(|_| coherent)
+        allocation.mapped_slice_mut().filter(|_| coherent).map(f)
     }
 
     /// Writes `data` at byte `offset`, directly when mapped, else through a staging copy.
@@ -137,20 +163,20 @@ impl Buffer {
         if bytes.is_empty() {
             return Ok(());
         }
-        if let Some(mapped) = self.mapped() {
-            mapped[offset as usize..end as usize].copy_from_slice(bytes);
+        let range = offset as usize..end as usize;
+        if let Some(()) = self.with_mapped(|mapped| mapped[range].copy_from_slice(bytes)) {
             return Ok(());
         }
         let mut staging = Buffer::new(
-            &self.ctx,
+            self.ctx(),
             "staging upload",
             bytes.len() as u64,
             BufferKind::Upload,
         )?;
         staging.write(0, bytes)?;
-        let mut rec = Recorder::new(&self.ctx)?;
+        let mut rec = Recorder::new(self.ctx())?;
         rec.copy_buffer(&staging, 0, self, offset, bytes.len() as u64);
-        self.ctx.submit_and_wait(rec)
+        self.ctx().submit_and_wait(rec)
     }
 
     /// Reads the whole buffer back as `T`s (the device must be done writing it).
@@ -172,32 +198,22 @@ impl Buffer {
         if len == 0 {
             return Ok(out);
         }
-        if let Some(mapped) = self.mapped_for_reading() {
-            bytemuck::cast_slice_mut(&mut out)
-                .copy_from_slice(&mapped[offset as usize..(offset + len) as usize]);
+        let range = offset as usize..(offset + len) as usize;
+        let out_bytes: &mut [u8] = bytemuck::cast_slice_mut(&mut out);
+        if let Some(()) = self.with_mapped(|mapped| out_bytes.copy_from_slice(&mapped[range])) {
             return Ok(out);
         }
-        let staging = Buffer::new(&self.ctx, "staging readback", len, BufferKind::Readback)?;
-        let mut rec = Recorder::new(&self.ctx)?;
+        let staging = Buffer::new(self.ctx(), "staging readback", len, BufferKind::Readback)?;
+        let mut rec = Recorder::new(self.ctx())?;
         rec.copy_buffer(self, offset, &staging, 0, len);
-        self.ctx.submit_and_wait(rec)?;
-        let mapped = staging
-            .mapped_for_reading()
+        self.ctx().submit_and_wait(rec)?;
+        let out_bytes: &mut [u8] = bytemuck::cast_slice_mut(&mut out);
+        staging
+            .with_mapped(|mapped| out_bytes.copy_from_slice(&mapped[..len as usize]))
             .ok_or_else(|| Error::Allocation {
                 name: "staging readback".into(),
                 reason: "readback memory is not host-visible and coherent".into(),
             })?;
-        bytemuck::cast_slice_mut(&mut out).copy_from_slice(&mapped[..len as usize]);
         Ok(out)
-    }
-}
-
-impl Drop for Buffer {
-    fn drop(&mut self) {
-        // SAFETY: per the lifetime model no submitted work uses the buffer any more.
-        unsafe { self.ctx.device().destroy_buffer(self.raw, None) };
-        if let Some(allocation) = self.allocation.take() {
-            let _ = self.ctx.with_allocator(|a| a.free(allocation));
-        }
     }
 }

@@ -1,12 +1,13 @@
 //! Command recording: a [`Recorder`] wraps one primary command buffer; capabilities record
 //! into a recorder they are handed and never submit on their own. A finished
-//! [`Recording`] can be replayed any number of times.
+//! [`Recording`] can be replayed any number of times: it holds a share in every buffer,
+//! image, pipeline and query pool it uses, so none of them can be freed before it.
 
 use ash::vk;
 
 use super::pipeline::PipelineCommon;
 use super::{
-    vk_err, Binding, Buffer, ComputePipeline, Context, GraphicsPipeline, Image, ImageState,
+    vk_err, Binding, Buffer, ComputePipeline, Context, GraphicsPipeline, Held, Image, ImageState,
     Timestamps,
 };
 use crate::error::{Error, Result};
@@ -36,16 +37,23 @@ pub struct Recorder {
     /// The first command that exceeded a device limit; it was not recorded, and
     /// [`Recorder::finish`] returns this error instead of a recording.
     refused: Option<Error>,
+    /// A share in every resource a recorded command uses.
+    held: Vec<Held>,
 }
 
-/// A finished command buffer; [`Context::replay`] runs it again and again.
+/// A finished command buffer; [`Context::replay`] runs it again and again. It keeps every
+/// resource its commands use alive, however their owners drop them.
 pub struct Recording {
     ctx: Context,
     raw: vk::CommandBuffer,
+    /// Never read: kept so that what the commands use outlives them.
+    _held: Vec<Held>,
 }
 
 impl Drop for Recording {
     fn drop(&mut self) {
+        // The command buffer goes first, then (as the fields drop) the shares in what it
+        // used.
         self.ctx.free_command_buffer(self.raw);
     }
 }
@@ -76,6 +84,7 @@ impl Recorder {
             ctx: ctx.clone(),
             raw,
             refused: None,
+            held: Vec::new(),
         })
     }
 
@@ -88,6 +97,7 @@ impl Recorder {
         let recording = Recording {
             ctx: self.ctx.clone(),
             raw,
+            _held: std::mem::take(&mut self.held),
         };
         // SAFETY: the command buffer is in the recording state.
         unsafe { self.ctx.device().end_command_buffer(raw) }
@@ -97,6 +107,11 @@ impl Recorder {
 
     fn device(&self) -> &ash::Device {
         self.ctx.device()
+    }
+
+    /// Keeps a resource a command uses alive as long as the recording.
+    fn hold(&mut self, share: Held) {
+        self.held.push(share);
     }
 
     /// Makes all earlier writes (any stage) visible to all later commands.
@@ -114,6 +129,9 @@ impl Recorder {
     /// Moves images (all layers) from one state to another, waiting for prior use, in
     /// one batched barrier.
     pub fn transition(&mut self, images: &[&Image], from: ImageState, to: ImageState) {
+        for image in images {
+            self.hold(image.held());
+        }
         let barriers: Vec<_> = images
             .iter()
             .map(|image| {
@@ -139,7 +157,7 @@ impl Recorder {
             })
             .collect();
         let dependency = vk::DependencyInfo::default().image_memory_barriers(&barriers);
-        // SAFETY: recording state; images are alive until the submission completes.
+        // SAFETY: recording state; the images are held by this recorder.
         unsafe { self.device().cmd_pipeline_barrier2(self.raw, &dependency) };
     }
 
@@ -153,6 +171,14 @@ impl Recorder {
             .or(target.depth.map(|d| d.0))
             .ok_or_else(|| Error::InvalidInput("a render pass needs an attachment".into()))?;
         let (width, height) = (first.width(), first.height());
+        for image in target
+            .colors
+            .iter()
+            .map(|c| c.0)
+            .chain(target.depth.map(|d| d.0))
+        {
+            self.hold(image.held());
+        }
         let colors: Vec<_> = target
             .colors
             .iter()
@@ -208,7 +234,8 @@ impl Recorder {
     }
 
     pub fn bind_graphics(&mut self, pipeline: &GraphicsPipeline) {
-        // SAFETY: recording state; the pipeline outlives the submission.
+        self.hold(pipeline.common.held());
+        // SAFETY: recording state; the pipeline is held by this recorder.
         unsafe {
             self.device().cmd_bind_pipeline(
                 self.raw,
@@ -219,6 +246,7 @@ impl Recorder {
     }
 
     pub fn bind_compute(&mut self, pipeline: &ComputePipeline) {
+        self.hold(pipeline.common.held());
         // SAFETY: as above.
         unsafe {
             self.device().cmd_bind_pipeline(
@@ -268,6 +296,12 @@ impl Recorder {
         if self.refused.is_some() {
             return;
         }
+        for binding in bindings {
+            self.hold(match binding {
+                Binding::Buffer { buffer, .. } => buffer.held(),
+                Binding::Image(image) => image.held(),
+            });
+        }
         let buffer_infos: Vec<[vk::DescriptorBufferInfo; 1]> = bindings
             .iter()
             .map(|b| match b {
@@ -306,8 +340,8 @@ impl Recorder {
                 }
             })
             .collect();
-        // SAFETY: recording state; layout matches the pipeline; resources outlive the
-        // submission per the lifetime model.
+        // SAFETY: recording state; layout matches the pipeline; the resources are held by
+        // this recorder.
         unsafe {
             self.ctx.shared.push_descriptor.cmd_push_descriptor_set(
                 self.raw,
@@ -358,6 +392,7 @@ impl Recorder {
     /// `first_index`; `gl_PrimitiveID` counts from 0 in each draw. The index buffer is
     /// bound at the first index (lavapipe draws nothing for a large `firstIndex`).
     pub fn draw_indexed(&mut self, indices: &Buffer, first_index: u32, index_count: u32) {
+        self.hold(indices.held());
         // SAFETY: as above; the index buffer was created with index usage.
         unsafe {
             self.device().cmd_bind_index_buffer(
@@ -377,6 +412,7 @@ impl Recorder {
         if self.refused.is_some() {
             return;
         }
+        self.hold(args.held());
         // SAFETY: a compute pipeline is bound; `args` has indirect usage (device buffers).
         unsafe {
             self.device()
@@ -429,6 +465,8 @@ impl Recorder {
         dst_offset: u64,
         size: u64,
     ) {
+        self.hold(src.held());
+        self.hold(dst.held());
         let region = [vk::BufferCopy::default()
             .src_offset(src_offset)
             .dst_offset(dst_offset)
@@ -446,6 +484,7 @@ impl Recorder {
         debug_assert!(
             offset.is_multiple_of(4) && size.is_multiple_of(4) && offset + size <= buffer.size()
         );
+        self.hold(buffer.held());
         // SAFETY: recording state; the range lies inside the buffer (checked above in debug
         // builds, by the callers' fixed layouts otherwise).
         unsafe {
@@ -456,6 +495,7 @@ impl Recorder {
 
     /// Fills a whole buffer with a repeated 32-bit word.
     pub fn fill_buffer(&mut self, buffer: &Buffer, word: u32) {
+        self.hold(buffer.held());
         // SAFETY: recording state; size is a multiple of 4 (see `Buffer::new`).
         unsafe {
             self.device()
@@ -474,6 +514,8 @@ impl Recorder {
                 image.byte_size()
             )));
         }
+        self.hold(image.held());
+        self.hold(buffer.held());
         let region = [vk::BufferImageCopy::default()
             .image_subresource(
                 vk::ImageSubresourceLayers::default()
@@ -500,6 +542,7 @@ impl Recorder {
 
     /// Resets all slots of `timestamps` (before writing them in this recording).
     pub fn reset_timestamps(&mut self, timestamps: &Timestamps) {
+        self.hold(timestamps.held());
         // SAFETY: recording state, outside a render pass.
         unsafe {
             self.device()
@@ -509,6 +552,7 @@ impl Recorder {
 
     /// Writes slot `index` once all earlier commands have finished.
     pub fn timestamp(&mut self, timestamps: &Timestamps, index: u32) {
+        self.hold(timestamps.held());
         // SAFETY: recording state; index < count is checked by the validation layer.
         unsafe {
             self.device().cmd_write_timestamp2(

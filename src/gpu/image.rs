@@ -5,7 +5,9 @@ use ash::vk;
 use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme};
 use gpu_allocator::MemoryLocation;
 
-use super::{vk_err, Context};
+use std::sync::Arc;
+
+use super::{vk_err, Context, Held};
 use crate::error::{Error, Result};
 
 /// The pixel formats the engine uses.
@@ -107,15 +109,40 @@ impl ImageState {
 /// A 2D array image with one view per layer (for rendering) and one over all layers
 /// (for compute). Freed in `Drop`.
 pub struct Image {
-    ctx: Context,
+    memory: Arc<ImageMemory>,
     pub(crate) raw: vk::Image,
     pub(crate) layer_views: Vec<vk::ImageView>,
     pub(crate) array_view: vk::ImageView,
-    allocation: Option<Allocation>,
     width: u32,
     height: u32,
     layers: u32,
     format: Format,
+}
+
+/// What an [`Image`] owns on the device (the image, its views, its memory); shared with
+/// the recordings that use it, freed when the last of them and the image are gone.
+struct ImageMemory {
+    ctx: Context,
+    raw: vk::Image,
+    views: Vec<vk::ImageView>,
+    allocation: Option<Allocation>,
+}
+
+impl Drop for ImageMemory {
+    fn drop(&mut self) {
+        let device = self.ctx.device();
+        // SAFETY: the image and every recording that used it are gone, and submissions
+        // block until the device is done; the views go before the image.
+        unsafe {
+            for &v in &self.views {
+                device.destroy_image_view(v, None);
+            }
+            device.destroy_image(self.raw, None);
+        }
+        if let Some(allocation) = self.allocation.take() {
+            let _ = self.ctx.with_allocator(|a| a.free(allocation));
+        }
+    }
 }
 
 impl Image {
@@ -207,24 +234,35 @@ impl Image {
             // SAFETY: the image outlives its views (destroyed first in Drop).
             unsafe { device.create_image_view(&info, None) }.map_err(vk_err("vkCreateImageView"))
         };
-        let mut image = Self {
+        // Owned from here on: a failed view frees what exists so far.
+        let mut memory = ImageMemory {
             ctx: ctx.clone(),
             raw,
-            layer_views: Vec::new(),
-            array_view: vk::ImageView::null(),
+            views: Vec::new(),
             allocation: Some(allocation),
+        };
+        for layer in 0..layers {
+            memory
+                .views
+                .push(view(vk::ImageViewType::TYPE_2D, layer, 1)?);
+        }
+        let array_view = view(vk::ImageViewType::TYPE_2D_ARRAY, 0, layers)?;
+        memory.views.push(array_view);
+        Ok(Self {
+            raw,
+            layer_views: memory.views[..layers as usize].to_vec(),
+            array_view,
+            memory: Arc::new(memory),
             width,
             height,
             layers,
             format,
-        };
-        for layer in 0..layers {
-            image
-                .layer_views
-                .push(view(vk::ImageViewType::TYPE_2D, layer, 1)?);
-        }
-        image.array_view = view(vk::ImageViewType::TYPE_2D_ARRAY, 0, layers)?;
-        Ok(image)
+        })
+    }
+
+    /// A share in the image's Vulkan objects and memory, for a recording that uses it.
+    pub(crate) fn held(&self) -> Held {
+        self.memory.clone()
     }
 
     pub fn width(&self) -> u32 {
@@ -246,23 +284,5 @@ impl Image {
     /// Bytes of all layers packed tightly (layer, row, column).
     pub fn byte_size(&self) -> u64 {
         self.width as u64 * self.height as u64 * self.layers as u64 * self.format.texel_bytes()
-    }
-}
-
-impl Drop for Image {
-    fn drop(&mut self) {
-        let device = self.ctx.device();
-        // SAFETY: per the lifetime model the device no longer uses the image.
-        unsafe {
-            for &v in self.layer_views.iter().chain([&self.array_view]) {
-                if v != vk::ImageView::null() {
-                    device.destroy_image_view(v, None);
-                }
-            }
-            device.destroy_image(self.raw, None);
-        }
-        if let Some(allocation) = self.allocation.take() {
-            let _ = self.ctx.with_allocator(|a| a.free(allocation));
-        }
     }
 }

@@ -8,10 +8,12 @@
 //!   ([`Buffer`], [`Image`], pipelines, [`Timestamps`]) holds such a handle and frees
 //!   its Vulkan objects and memory in `Drop`; the device itself is destroyed when the
 //!   last handle goes, after `vkDeviceWaitIdle`, in reverse order of creation.
-//! * Commands are recorded into a [`Recorder`] that borrows nothing: the caller keeps
-//!   every resource it records alive until the submission has completed.
-//!   [`Context::submit_and_wait`] and [`Context::replay`] block (with a bounded wait)
-//!   until the device is done, so resources may be dropped as soon as they return.
+//! * Commands are recorded into a [`Recorder`], which takes a share in every resource a
+//!   command uses (its Vulkan objects and memory are reference counted), and the
+//!   [`Recording`] it finishes into keeps those shares: a resource dropped by its owner
+//!   lives on until the last recording that uses it is gone, so a recording can always be
+//!   replayed safely. [`Context::submit_and_wait`] and [`Context::replay`] block (with a
+//!   bounded wait) until the device is done.
 //! * Nothing is destroyed while the device may still use it: the only way to run work is
 //!   through those blocking calls, and `Drop` of the context waits for idle.
 //!
@@ -35,6 +37,9 @@ pub use timestamps::Timestamps;
 use ash::vk;
 
 use crate::error::Error;
+
+/// A share in a resource's Vulkan objects and memory, held by the recordings that use it.
+pub(crate) type Held = std::sync::Arc<dyn std::any::Any + Send + Sync>;
 
 /// Wraps a Vulkan error code with the call that returned it.
 pub(crate) fn vk_err(call: &'static str) -> impl FnOnce(vk::Result) -> Error {

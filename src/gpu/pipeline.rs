@@ -1,9 +1,11 @@
 //! Compute and graphics pipelines from SPIR-V, with push-descriptor set layouts and a
 //! push-constant range.
 
+use std::sync::Arc;
+
 use ash::vk;
 
-use super::{vk_err, Buffer, Context, DeviceInfo, Format, Image};
+use super::{vk_err, Buffer, Context, DeviceInfo, Format, Held, Image};
 use crate::error::{Error, Result};
 
 /// The kind of resource a pipeline binding (set 0, binding = position) takes.
@@ -129,6 +131,13 @@ fn check_layout_fits(info: &DeviceInfo, bindings: &[BindingKind], push_bytes: u3
     Ok(())
 }
 
+impl PipelineCommon {
+    /// A share in the pipeline's Vulkan objects, for a recording that uses it.
+    pub(crate) fn held(self: &Arc<Self>) -> Held {
+        self.clone()
+    }
+}
+
 impl Drop for PipelineCommon {
     fn drop(&mut self) {
         let device = self.ctx.device();
@@ -150,7 +159,7 @@ fn shader_module(ctx: &Context, spirv: &[u32]) -> Result<vk::ShaderModule> {
 
 /// A compute pipeline.
 pub struct ComputePipeline {
-    pub(crate) common: PipelineCommon,
+    pub(crate) common: Arc<PipelineCommon>,
 }
 
 impl ComputePipeline {
@@ -183,7 +192,7 @@ impl ComputePipeline {
         let pipeline = created.map_err(|(_, e)| vk_err("vkCreateComputePipelines")(e))?[0];
         ctx.name_object(pipeline, name);
         Ok(Self {
-            common: PipelineCommon {
+            common: Arc::new(PipelineCommon {
                 ctx: ctx.clone(),
                 pipeline,
                 layout,
@@ -191,7 +200,7 @@ impl ComputePipeline {
                 bindings: bindings.to_vec(),
                 push_constant_bytes,
                 stages,
-            },
+            }),
         })
     }
 }
@@ -211,7 +220,7 @@ pub struct GraphicsPipelineDesc<'a> {
 
 /// A graphics pipeline for dynamic rendering.
 pub struct GraphicsPipeline {
-    pub(crate) common: PipelineCommon,
+    pub(crate) common: Arc<PipelineCommon>,
 }
 
 impl GraphicsPipeline {
@@ -289,7 +298,7 @@ impl GraphicsPipeline {
         let pipeline = created.map_err(|(_, e)| vk_err("vkCreateGraphicsPipelines")(e))?[0];
         ctx.name_object(pipeline, desc.name);
         Ok(Self {
-            common: PipelineCommon {
+            common: Arc::new(PipelineCommon {
                 ctx: ctx.clone(),
                 pipeline,
                 layout,
@@ -297,7 +306,7 @@ impl GraphicsPipeline {
                 bindings: desc.bindings.to_vec(),
                 push_constant_bytes: desc.push_constant_bytes,
                 stages,
-            },
+            }),
         })
     }
 }

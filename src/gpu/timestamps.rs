@@ -1,15 +1,31 @@
 //! GPU timestamps: a query pool whose ticks are converted to milliseconds.
 
+use std::sync::Arc;
+
 use ash::vk;
 
-use super::{vk_err, Context};
+use super::{vk_err, Context, Held};
 use crate::error::Result;
 
 /// `count` timestamp slots, written by [`super::Recorder::timestamp`].
 pub struct Timestamps {
-    ctx: Context,
+    owned: Arc<QueryPool>,
     pub(crate) pool: vk::QueryPool,
     count: u32,
+}
+
+/// The query pool, shared with the recordings that write it.
+struct QueryPool {
+    ctx: Context,
+    raw: vk::QueryPool,
+}
+
+impl Drop for QueryPool {
+    fn drop(&mut self) {
+        // SAFETY: the timestamps and every recording that wrote them are gone, and
+        // submissions block until the device is done.
+        unsafe { self.ctx.device().destroy_query_pool(self.raw, None) };
+    }
 }
 
 impl Timestamps {
@@ -21,10 +37,18 @@ impl Timestamps {
         let pool = unsafe { ctx.device().create_query_pool(&info, None) }
             .map_err(vk_err("vkCreateQueryPool"))?;
         Ok(Self {
-            ctx: ctx.clone(),
+            owned: Arc::new(QueryPool {
+                ctx: ctx.clone(),
+                raw: pool,
+            }),
             pool,
             count,
         })
+    }
+
+    /// A share in the query pool, for a recording that writes it.
+    pub(crate) fn held(&self) -> Held {
+        self.owned.clone()
     }
 
     pub fn count(&self) -> u32 {
@@ -36,7 +60,7 @@ impl Timestamps {
         let mut ticks = vec![0u64; self.count as usize];
         // SAFETY: the submission that wrote the queries has completed (blocking submits).
         unsafe {
-            self.ctx.device().get_query_pool_results(
+            self.owned.ctx.device().get_query_pool_results(
                 self.pool,
                 0,
                 &mut ticks,
@@ -44,14 +68,7 @@ impl Timestamps {
             )
         }
         .map_err(vk_err("vkGetQueryPoolResults"))?;
-        let period_ms = self.ctx.info().timestamp_period_ns as f64 * 1e-6;
+        let period_ms = self.owned.ctx.info().timestamp_period_ns as f64 * 1e-6;
         Ok(ticks.iter().map(|&t| t as f64 * period_ms).collect())
-    }
-}
-
-impl Drop for Timestamps {
-    fn drop(&mut self) {
-        // SAFETY: no submitted work uses the pool any more.
-        unsafe { self.ctx.device().destroy_query_pool(self.pool, None) };
     }
 }
