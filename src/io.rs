@@ -130,6 +130,20 @@ pub fn check_npy_size(name: &str, bytes: &[u8]) -> Result<()> {
     Ok(())
 }
 
+/// [`check_npy_size`] for every array of an `.npz` archive whose entries are stored (as
+/// numpy's `savez` and vkdr write them): no header may claim more data than the rest of
+/// the file holds, so that a reader never allocates for a lying header. Compressed
+/// entries show no header here; their readers check the archive's own sizes.
+pub fn check_npz_sizes(name: &str, bytes: &[u8]) -> Result<()> {
+    const MAGIC: &[u8] = b"\x93NUMPY";
+    for at in 0..bytes.len().saturating_sub(MAGIC.len() - 1) {
+        if &bytes[at..at + MAGIC.len()] == MAGIC {
+            check_npy_size(name, &bytes[at..])?;
+        }
+    }
+    Ok(())
+}
+
 /// Writes an RGB(A) or grey image as PNG.
 pub fn write_png(path: &Path, image: &image::DynamicImage) -> Result<()> {
     let mut bytes = Vec::new();

@@ -188,6 +188,39 @@ proptest! {
     }
 }
 
+/// A shape space whose array header claims far more data than the file holds (a shape of
+/// 1e14 rows: allocating for it aborted the process) is refused before anything is read.
+#[test]
+fn a_shape_space_header_claiming_too_much_is_refused() {
+    let original = shape_space_file();
+    let mut bytes = std::fs::read(&original).unwrap();
+    let find = |from: usize, what: &[u8]| {
+        from + bytes[from..]
+            .windows(what.len())
+            .position(|w| w == what)
+            .unwrap()
+    };
+    // The first array's shape "a, b), }" grows into the header's padding: same length.
+    let at = find(0, b"'shape': (") + "'shape': (".len();
+    let end = find(at, b"}") + 1;
+    let padding = find(end, b"\n") - end;
+    let grown = [b"100000000000000", &bytes[at..end]].concat();
+    assert!(
+        grown.len() <= end - at + padding,
+        "no room in the header's padding"
+    );
+    bytes[at..at + grown.len()].copy_from_slice(&grown);
+    let path = scratch("lying-space.npz");
+    std::fs::write(&path, &bytes).unwrap();
+    std::fs::copy(
+        original.with_extension("npz.json"),
+        path.with_extension("npz.json"),
+    )
+    .unwrap();
+    let error = vkdr::shape::ShapeSpace::load(&path).expect_err("refused");
+    assert!(error.to_string().contains("declares shape"), "{error}");
+}
+
 /// A small shape space saved once (from fits made on the host: no device needed).
 fn shape_space_file() -> PathBuf {
     static ONCE: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
