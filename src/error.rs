@@ -52,7 +52,7 @@ pub type Result<T, E = Error> = std::result::Result<T, E>;
 
 /// A number for a message: plain where that is short, else in scientific notation (1e300,
 /// not three hundred digits).
-pub(crate) fn show(v: f64) -> String {
+pub fn show(v: f64) -> String {
     if v == 0.0 || !v.is_finite() || (1e-4..1e7).contains(&v.abs()) {
         format!("{v}")
     } else {
@@ -61,14 +61,16 @@ pub(crate) fn show(v: f64) -> String {
 }
 
 impl Error {
-    pub(crate) fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+    /// An I/O error on `path`.
+    pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
         Error::Io {
             path: path.into(),
             source,
         }
     }
 
-    pub(crate) fn format(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
+    /// A file whose contents are not what they should be.
+    pub fn format(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
         Error::Format {
             path: path.into(),
             message: message.into(),

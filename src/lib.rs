@@ -93,19 +93,16 @@
 #![warn(unsafe_op_in_unsafe_fn)]
 
 pub mod camera;
-pub mod check;
 pub mod cpd;
-pub mod dataset;
 pub mod diff;
 pub mod error;
-pub mod eval;
 pub mod gpu;
 pub mod io;
 pub mod loss;
 pub mod mesh;
-pub mod plot;
 pub mod raster;
 pub mod register;
+pub mod rng;
 pub mod shape;
 
 pub use camera::{Camera, Pose};

@@ -355,8 +355,9 @@ impl ShapeSpace {
                 format!("format version {version}, this vkdr reads {FORMAT_VERSION}"),
             ));
         }
-        let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-        let mut npz = ndarray_npy::NpzReader::new(file)
+        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        crate::io::check_npz_sizes(&path.display().to_string(), &bytes)?;
+        let mut npz = ndarray_npy::NpzReader::new(std::io::Cursor::new(bytes))
             .map_err(|e| Error::format(path, format!("not a readable .npz: {e}")))?;
         let bad = |what: &str| Error::format(path, what.to_string());
         let mut get2 = |name: &str| -> Result<Array2<f64>> {
@@ -474,13 +475,8 @@ fn description_path(path: &Path) -> PathBuf {
 }
 
 /// A shape space of `dims` dimensions over an 8-segment bottle from `instances` random
-/// training fits (coefficients in +-1, displacements in +-1 cm), for tests.
-#[cfg(test)]
-pub(crate) fn random_space(
-    rng: &mut crate::dataset::Rng,
-    instances: usize,
-    dims: usize,
-) -> ShapeSpace {
+/// training fits (coefficients in +-1, displacements in +-1 cm), for tests: no CPD runs.
+pub fn random_space(rng: &mut crate::rng::Rng, instances: usize, dims: usize) -> ShapeSpace {
     let canonical = Mesh::bottle(8);
     let d = 3 * canonical.vertex_count();
     let fits: Vec<TrainingFit> = (0..instances)
@@ -496,7 +492,7 @@ pub(crate) fn random_space(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::dataset::Rng;
+    use crate::rng::Rng;
 
     #[test]
     fn displacement_codes_are_least_squares_fits() {

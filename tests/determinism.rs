@@ -7,13 +7,13 @@ mod common;
 
 use glam::DVec3;
 use vkdr::cpd::CpdParams;
-use vkdr::dataset::{instance, Rng};
 use vkdr::diff::{DiffRenderer, Evaluation, Scene, SceneDesc, Shading};
 use vkdr::loss::Loss;
 use vkdr::raster::{Outputs, Rasterizer, View};
 use vkdr::register::{Job, Optimizer, RegisterParams, Registrar, Registration};
 use vkdr::shape::ShapeSpace;
 use vkdr::{Camera, Mesh, Pose};
+use vkdr_app::dataset::{instance, Rng};
 
 fn bits(values: impl IntoIterator<Item = f32>) -> Vec<u32> {
     values.into_iter().map(f32::to_bits).collect()

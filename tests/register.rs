@@ -6,13 +6,13 @@ mod common;
 
 use glam::DVec3;
 use vkdr::cpd::CpdParams;
-use vkdr::dataset::{instance, Rng};
 use vkdr::diff::Shading;
-use vkdr::eval;
 use vkdr::raster::{Outputs, Rasterizer, View};
 use vkdr::register::{Job, Optimizer, RegisterParams, Registrar};
 use vkdr::shape::ShapeSpace;
 use vkdr::{Camera, Pose};
+use vkdr_app::dataset::{instance, Rng};
+use vkdr_app::eval;
 
 fn space(ctx: &vkdr::gpu::Context) -> ShapeSpace {
     let mut rng = Rng::new(11);
@@ -454,8 +454,8 @@ fn eval_measures_every_condition() {
         .canonical
         .with_points(&space.vertices(&space.training_codes[1]).unwrap())
         .unwrap();
-    let defaults = vkdr::eval::EvalSettings::default();
-    let settings = vkdr::eval::EvalSettings {
+    let defaults = vkdr_app::eval::EvalSettings::default();
+    let settings = vkdr_app::eval::EvalSettings {
         camera: view(Pose::new([0.0, 0.0, 0.6], [0.0; 3]).unwrap()).camera,
         distance: 0.6,
         trials: 2,
@@ -471,7 +471,7 @@ fn eval_measures_every_condition() {
         from_truth: true,
         ..defaults
     };
-    let row = vkdr::eval::evaluate_instance(
+    let row = vkdr_app::eval::evaluate_instance(
         &ctx,
         &registrar,
         &space,
@@ -483,8 +483,8 @@ fn eval_measures_every_condition() {
     )
     .unwrap();
     common::assert_no_validation_errors(&ctx);
-    let truth = vkdr::eval::surface_sample(&test, vkdr::eval::SAMPLE_POINTS, 1);
-    let mean_shape = vkdr::eval::surface_error(
+    let truth = vkdr_app::eval::surface_sample(&test, vkdr_app::eval::SAMPLE_POINTS, 1);
+    let mean_shape = vkdr_app::eval::surface_error(
         &truth,
         &space.vertices(&vec![0.0; space.dims()]).unwrap(),
         space.canonical.triangles(),

@@ -5,9 +5,9 @@ mod common;
 
 use glam::DVec3;
 use vkdr::cpd::{self, CpdParams, CpdPipelines};
-use vkdr::dataset::{instance, Rng};
-use vkdr::eval;
 use vkdr::shape::ShapeSpace;
+use vkdr_app::dataset::{instance, Rng};
+use vkdr_app::eval;
 
 fn small_space(
     ctx: &vkdr::gpu::Context,

@@ -1014,8 +1014,8 @@ fn read_pose(views: &crate::raster::ViewBuffers) -> Result<Pose> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::dataset::Rng;
     use crate::raster::ViewBuffers;
+    use crate::rng::Rng;
     use crate::shape::random_space;
     use crate::Camera;
 

@@ -13,9 +13,9 @@ use vkdr::diff::DiffRenderer;
 use crate::grad::mask_scene;
 use vkdr::gpu::{Context, Recorder, Timestamps};
 use vkdr::loss::Loss;
-use vkdr::plot::{Plot, PALETTE};
 use vkdr::raster::{MeshBuffers, ShadedTarget, View};
 use vkdr::{Camera, Mesh, Pose};
+use vkdr_app::plot::{Plot, PALETTE};
 
 pub struct BenchArgs {
     /// Width and height.

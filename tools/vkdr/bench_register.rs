@@ -12,16 +12,16 @@ use anyhow::{bail, Context as _, Result};
 use glam::DVec3;
 
 use vkdr::camera::parse_size;
-use vkdr::dataset::{instance, Rng};
 use vkdr::diff::{DepthLoss, Shading};
-use vkdr::eval::{self, surface_error, EvalSettings};
 use vkdr::gpu::Context;
 use vkdr::io::{write_atomically, write_png};
-use vkdr::plot::{Plot, PALETTE};
 use vkdr::raster::{Outputs, View};
 use vkdr::register::{Job, OtherView, PassTimes, Registrar};
 use vkdr::shape::ShapeSpace;
 use vkdr::Camera;
+use vkdr_app::dataset::{instance, Rng};
+use vkdr_app::eval::{self, surface_error, EvalSettings};
+use vkdr_app::plot::{Plot, PALETTE};
 
 use crate::bench::median;
 

@@ -5,8 +5,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context as _, Result};
 
-use vkdr::check::{self, Category};
 use vkdr::io::write_png;
+use vkdr_app::check::{self, Category};
 
 /// The category folders under `dataset` (or `dataset` itself when it is one): folders
 /// with a canonical.obj, a train/ or a test/.

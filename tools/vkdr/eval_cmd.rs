@@ -6,14 +6,14 @@ use anyhow::{bail, Context as _, Result};
 use glam::DVec3;
 use image::{Rgb, RgbImage};
 
-use vkdr::eval::{self, EvalSettings, Row, Trial};
 use vkdr::gpu::Context;
 use vkdr::io::{write_atomically, write_json, write_npy, write_png};
-use vkdr::plot::{Plot, PALETTE};
 use vkdr::raster::View;
 use vkdr::register::{Job, RegisterParams, Registrar, Registration};
 use vkdr::shape::ShapeSpace;
 use vkdr::Mesh;
+use vkdr_app::eval::{self, EvalSettings, Row, Trial};
+use vkdr_app::plot::{Plot, PALETTE};
 
 use crate::shape_cmd::obj_files;
 
@@ -199,7 +199,7 @@ pub fn eval(
         let has_tests = category
             .meshes
             .iter()
-            .any(|(s, _)| s.role == vkdr::check::Role::Test);
+            .any(|(s, _)| s.role == vkdr_app::check::Role::Test);
         if !has_tests {
             bail!("{}: test/ has no meshes to evaluate", dir.display());
         }

@@ -233,13 +233,13 @@ struct EvalArgs {
     #[arg(long)]
     categories: Option<String>,
     /// Dimensions of each category's shape space (at most its training instances less one).
-    #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().dims)]
+    #[arg(long, default_value_t = vkdr_app::eval::EvalSettings::default().dims)]
     dims: usize,
     /// Iterations with pose noise, after the alignment's.
-    #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.iterations)]
+    #[arg(long, default_value_t = vkdr_app::eval::EvalSettings::default().pose_noise.iterations)]
     noise_iterations: usize,
     /// Iterations with the pose known.
-    #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().known_pose.iterations)]
+    #[arg(long, default_value_t = vkdr_app::eval::EvalSettings::default().known_pose.iterations)]
     known_iterations: usize,
     /// Loss of both conditions: mse | iou | distance (default: each condition's own).
     #[arg(long)]
@@ -251,15 +251,15 @@ struct EvalArgs {
     #[arg(long)]
     optimizer: Option<String>,
     /// First pose steps with pose noise: translation (m) and rotation (rad).
-    #[arg(long, allow_negative_numbers = true, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.translation_step)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = vkdr_app::eval::EvalSettings::default().pose_noise.translation_step)]
     translation_step: f64,
-    #[arg(long, allow_negative_numbers = true, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.rotation_step)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = vkdr_app::eval::EvalSettings::default().pose_noise.rotation_step)]
     rotation_step: f64,
     /// With pose noise: update the pose once every this many iterations...
-    #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.pose_every)]
+    #[arg(long, default_value_t = vkdr_app::eval::EvalSettings::default().pose_noise.pose_every)]
     pose_every: usize,
     /// With pose noise: iterations that first align the pose alone (distance loss).
-    #[arg(long, default_value_t = vkdr::eval::EvalSettings::default().pose_noise.align)]
+    #[arg(long, default_value_t = vkdr_app::eval::EvalSettings::default().pose_noise.align)]
     align: usize,
     /// Also optimise pose and shape from the true pose (a column of its own): where the
     /// silhouette's optimum lies, apart from the start.
@@ -724,7 +724,7 @@ fn eval_command(args: &EvalArgs) -> Result<()> {
             args.trials
         );
     }
-    let mut settings = vkdr::eval::EvalSettings {
+    let mut settings = vkdr_app::eval::EvalSettings {
         trials: args.trials,
         seed: args.seed,
         dims: args.dims,
@@ -777,7 +777,7 @@ fn eval_command(args: &EvalArgs) -> Result<()> {
 
 fn eval(
     dataset: &Path,
-    settings: vkdr::eval::EvalSettings,
+    settings: vkdr_app::eval::EvalSettings,
     categories: Option<&str>,
     skip_checks: bool,
     out: &Path,
@@ -820,7 +820,7 @@ fn gen_dataset(out: &Path, seed: u64, train: usize, test: usize, force: bool) ->
     if force {
         // A dataset written over with fewer meshes must not keep the old ones beside the
         // new info.json: each generated category's folder is replaced whole.
-        for category in vkdr::dataset::CATEGORIES {
+        for category in vkdr_app::dataset::CATEGORIES {
             let dir = out.join(category);
             if dir.is_dir() {
                 std::fs::remove_dir_all(&dir)
@@ -828,7 +828,7 @@ fn gen_dataset(out: &Path, seed: u64, train: usize, test: usize, force: bool) ->
             }
         }
     }
-    let dirs = vkdr::dataset::generate(out, seed, train, test, |category, done, total| {
+    let dirs = vkdr_app::dataset::generate(out, seed, train, test, |category, done, total| {
         eprint!("\r  {category:<14} {done:>3}/{total}");
         if done == total {
             eprintln!();
@@ -852,7 +852,7 @@ fn demo(out: &Path) -> Result<()> {
 
     // 1. A generated dataset.
     let dataset = out.join("dataset");
-    vkdr::dataset::generate(&dataset, 0, 10, 2, |_, _, _| {})?;
+    vkdr_app::dataset::generate(&dataset, 0, 10, 2, |_, _, _| {})?;
     println!(
         "1. generated {} (bottle, mug, spray_bottle, drill: 10 training and 2 test meshes each)",
         dataset.display()
@@ -876,14 +876,14 @@ fn demo(out: &Path) -> Result<()> {
         .next()
         .context("no test bottle")?;
     let test = Mesh::load_obj(&test_path)?;
-    let settings = vkdr::eval::EvalSettings {
+    let settings = vkdr_app::eval::EvalSettings {
         trials: 3,
-        up: vkdr::check::Info::read(&category)?.up,
+        up: vkdr_app::check::Info::read(&category)?.up,
         ..Default::default()
     };
     let registrar = vkdr::register::Registrar::new(&ctx)?;
-    let evaluate = |settings: &vkdr::eval::EvalSettings| {
-        vkdr::eval::evaluate_instance(
+    let evaluate = |settings: &vkdr_app::eval::EvalSettings| {
+        vkdr_app::eval::evaluate_instance(
             &ctx,
             &registrar,
             &space,
@@ -909,7 +909,7 @@ fn demo(out: &Path) -> Result<()> {
         row.ms,
         row.ms_per_iteration
     );
-    let shaded_settings = vkdr::eval::EvalSettings {
+    let shaded_settings = vkdr_app::eval::EvalSettings {
         shading: Some(vkdr::diff::Shading::default()),
         ..settings.clone()
     };
@@ -925,12 +925,12 @@ fn demo(out: &Path) -> Result<()> {
     );
 
     // 4. One registration with pose noise, with pictures.
-    let truth = vkdr::eval::view_pose_up(settings.up, 0.8, 0.5, settings.distance);
+    let truth = vkdr_app::eval::view_pose_up(settings.up, 0.8, 0.5, settings.distance);
     let view = View {
         camera: settings.camera,
         pose: truth,
     };
-    let mask = vkdr::eval::render_mask(&ctx, &registrar, &test, view)?;
+    let mask = vkdr_app::eval::render_mask(&ctx, &registrar, &test, view)?;
     let start = Pose {
         translation: truth.translation + glam::DVec3::new(0.03, -0.02, 0.0),
         rotation: truth.rotation + glam::DVec3::new(0.1, -0.15, 0.05),
@@ -948,8 +948,8 @@ fn demo(out: &Path) -> Result<()> {
     println!(
         "4. registered with pose noise in {:.0} ms: error {:.2} mm; pictures {2}/overlay_start.png, {2}/overlay_end.png (observed blue, rendered red)",
         result.milliseconds,
-        1e3 * vkdr::eval::surface_error(
-            &vkdr::eval::surface_sample(&test, vkdr::eval::SAMPLE_POINTS, 0),
+        1e3 * vkdr_app::eval::surface_error(
+            &vkdr_app::eval::surface_sample(&test, vkdr_app::eval::SAMPLE_POINTS, 0),
             &result.vertices,
             space.canonical.triangles()
         ),

@@ -5,13 +5,13 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context as _, Result};
 
-use vkdr::eval::{self, EvalSettings};
 use vkdr::gpu::Context;
 use vkdr::loss;
 use vkdr::raster::{Outputs, View};
 use vkdr::register::{self, Job, OtherView, RegisterParams, Registrar};
 use vkdr::shape::ShapeSpace;
 use vkdr::{Camera, Mesh, Pose};
+use vkdr_app::eval::{self, EvalSettings};
 
 use crate::{eval_cmd, parse_view, DepthLossArgs, ShadingArgs, ViewArgs};
 

@@ -6,10 +6,10 @@ use anyhow::{bail, Context as _, Result};
 use glam::DVec3;
 
 use vkdr::cpd::CpdParams;
-use vkdr::eval::mean_nearest;
 use vkdr::gpu::Context;
 use vkdr::shape::ShapeSpace;
 use vkdr::Mesh;
+use vkdr_app::eval::mean_nearest;
 
 /// The `.obj` files of a directory, sorted by name.
 pub fn obj_files(dir: &Path) -> Result<Vec<PathBuf>> {

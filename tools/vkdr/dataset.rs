@@ -8,34 +8,12 @@ use std::path::Path;
 
 use glam::{DMat3, DVec3};
 
-use crate::error::{Error, Result};
-use crate::mesh::Mesh;
+use vkdr::error::{Error, Result};
+use vkdr::mesh::Mesh;
 
 pub const CATEGORIES: [&str; 4] = ["bottle", "mug", "spray_bottle", "drill"];
 
-/// A small deterministic generator (PCG-like LCG), so datasets do not depend on a crate's
-/// algorithm changes.
-pub struct Rng(u64);
-
-impl Rng {
-    pub fn new(seed: u64) -> Self {
-        Rng(seed ^ 0x9E37_79B9_7F4A_7C15)
-    }
-
-    /// Uniform in [0, 1).
-    pub fn uniform(&mut self) -> f64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-
-    /// Uniform in [lo, hi).
-    pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.uniform()
-    }
-}
+pub use vkdr::rng::Rng;
 
 /// Applies a rotation then a translation to every vertex.
 fn transformed(mesh: &Mesh, rotation: DMat3, translation: DVec3) -> Mesh {
@@ -291,7 +269,7 @@ pub fn generate(
             "test": test,
             "generator": "vkdr gen-dataset",
         });
-        crate::io::write_json(&dir.join("info.json"), &info)?;
+        vkdr::io::write_json(&dir.join("info.json"), &info)?;
         dirs.push(dir);
     }
     Ok(dirs)

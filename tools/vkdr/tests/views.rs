@@ -4,15 +4,16 @@
 //! and one object pose (known relative camera poses), or from one view with depth, it
 //! converges to the known shape and pose.
 
+#[path = "../../../tests/common/mod.rs"]
 mod common;
 
 use glam::DVec3;
-use vkdr::dataset::Rng;
 use vkdr::diff::DepthLoss;
 use vkdr::raster::{Outputs, Rasterizer, View};
 use vkdr::register::{Job, Optimizer, OtherView, RegisterParams, Registrar, Registration};
 use vkdr::shape::{ShapeSpace, TrainingFit};
 use vkdr::{Camera, Mesh, Pose};
+use vkdr_app::dataset::Rng;
 
 /// How far the object is from the first camera (the focal length follows, so that it
 /// always spans the same pixels): far enough that perspective barely shows its depth.

@@ -16,9 +16,9 @@ use std::path::{Path, PathBuf};
 use glam::{DQuat, DVec3};
 use image::{Rgb, RgbImage};
 
-use crate::error::{Error, Result};
-use crate::mesh::Mesh;
 use crate::plot::draw_text;
+use vkdr::error::{Error, Result};
+use vkdr::mesh::Mesh;
 
 /// What a category's `info.json` says (all of it optional).
 #[derive(Clone, Debug, PartialEq)]
@@ -144,7 +144,7 @@ impl MeshStats {
         let points = mesh.points();
         let (lo, hi) = mesh.bounds();
         let extent = DVec3::from_array(hi.map(f64::from)) - DVec3::from_array(lo.map(f64::from));
-        let centroid = crate::mesh::centroid(&points);
+        let centroid = vkdr::mesh::centroid(&points);
         // One id per distinct position, so unwelded seams do not split components.
         let mut first_at: HashMap<[u32; 3], u32> = HashMap::new();
         let welded: Vec<u32> = mesh

@@ -14,18 +14,18 @@
 
 use glam::{DMat3, DVec3};
 
-use crate::camera::{Camera, Pose};
-use crate::cpd::linalg::{self, Matrix};
-use crate::cpd::CpdParams;
 use crate::dataset::Rng;
-use crate::diff::{DepthLoss, Scene, SceneDesc, Shading};
-use crate::error::Result;
-use crate::gpu::Context;
-use crate::loss::Loss;
-use crate::mesh::{centroid, Mesh};
-use crate::raster::{Outputs, View};
-use crate::register::{Job, Optimizer, OtherView, RegisterParams, Registrar};
-use crate::shape::ShapeSpace;
+use vkdr::camera::{Camera, Pose};
+use vkdr::cpd::linalg::{self, Matrix};
+use vkdr::cpd::CpdParams;
+use vkdr::diff::{DepthLoss, Scene, SceneDesc, Shading};
+use vkdr::error::Result;
+use vkdr::gpu::Context;
+use vkdr::loss::Loss;
+use vkdr::mesh::{centroid, Mesh};
+use vkdr::raster::{Outputs, View};
+use vkdr::register::{Job, Optimizer, OtherView, RegisterParams, Registrar};
+use vkdr::shape::ShapeSpace;
 
 /// Mean over `a` of the distance to the nearest point of `b`.
 pub fn mean_nearest(a: &[DVec3], b: &[DVec3]) -> f64 {
@@ -543,7 +543,7 @@ pub struct Trial {
     pub rotation_error_symmetric: f64,
     pub translation_error: f64,
     /// Code coordinates the optimiser ended with on its bound, with the pose known and
-    /// with pose noise ([`Registration::on_bound`](crate::register::Registration)).
+    /// with pose noise ([`Registration::on_bound`](vkdr::register::Registration)).
     pub known_pose_on_bound: usize,
     pub pose_noise_on_bound: usize,
 }
@@ -566,7 +566,7 @@ pub fn symmetric_about(points: &[DVec3], up: DVec3) -> bool {
     if points.len() < 2 {
         return false;
     }
-    let centre = crate::mesh::centroid(&points);
+    let centre = vkdr::mesh::centroid(&points);
     let spacing = points
         .iter()
         .enumerate()
@@ -1059,7 +1059,7 @@ mod tests {
     /// The error curve measures every code, once for a run of equal codes.
     #[test]
     fn error_curve_follows_the_codes() {
-        let space = crate::shape::random_space(&mut Rng::new(5), 4, 2);
+        let space = vkdr::shape::random_space(&mut Rng::new(5), 4, 2);
         let canonical = &space.canonical;
         let truth = surface_sample(canonical, 300, 1);
         let (a, b) = (vec![0.0, 0.0], space.training_codes[1].clone());

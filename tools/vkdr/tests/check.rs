@@ -3,14 +3,15 @@
 //! is reported, the millimetre mesh stops `check-dataset`, `shape-space` and `eval` before
 //! any work, and the contact sheet shows every mesh.
 
+#[path = "../../../tests/common/mod.rs"]
 mod common;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use glam::{DQuat, DVec3};
-use vkdr::check::{self, Role, Severity};
 use vkdr::Mesh;
+use vkdr_app::check::{self, Role, Severity};
 
 /// `mesh` turned by `rotation`, scaled by `scale` and moved by `offset`.
 fn placed(mesh: &Mesh, rotation: DQuat, scale: f64, offset: DVec3) -> Mesh {

@@ -16,13 +16,15 @@
 use std::path::PathBuf;
 
 use anyhow::{Context as _, Result};
-use vkdr::dataset::Rng;
-use vkdr::eval::{noisy_pose, render_mask, surface_error, surface_sample, view_pose, EvalSettings};
 use vkdr::gpu::Context;
 use vkdr::raster::View;
 use vkdr::register::{Job, Registrar};
 use vkdr::shape::ShapeSpace;
 use vkdr::Mesh;
+use vkdr_app::dataset::Rng;
+use vkdr_app::eval::{
+    noisy_pose, render_mask, surface_error, surface_sample, view_pose, EvalSettings,
+};
 
 fn median(values: &mut [f64]) -> f64 {
     values.sort_by(f64::total_cmp);
