@@ -11,11 +11,17 @@ use crate::error::{show, Error, Result};
 /// Intrinsics and image size of an OpenCV pinhole camera.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Camera {
+    /// Focal length along x, pixels.
     pub fx: f64,
+    /// Focal length along y, pixels.
     pub fy: f64,
+    /// Principal point x, pixels.
     pub cx: f64,
+    /// Principal point y, pixels.
     pub cy: f64,
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
     /// Near clipping distance in metres: surface closer than this is not drawn.
     pub near: f64,
@@ -27,6 +33,7 @@ impl Camera {
     /// The largest focal length or principal point coordinate, pixels.
     pub const MAX_PIXELS: f64 = 1e7;
 
+    /// A camera with the default near plane; an error unless [`Camera::validated`] accepts it.
     pub fn new(fx: f64, fy: f64, cx: f64, cy: f64, width: u32, height: u32) -> Result<Self> {
         Self {
             fx,

@@ -10,23 +10,41 @@ pub enum Error {
     Loader(String),
     /// A Vulkan call returned an error code.
     #[error("Vulkan call {call} failed: {result}")]
-    Vulkan { call: &'static str, result: String },
+    Vulkan {
+        /// The Vulkan function that failed, e.g. `vkCreateBuffer`.
+        call: &'static str,
+        /// The returned `VkResult` code, by name.
+        result: String,
+    },
     /// No physical device fits (or `VKDR_DEVICE` named none).
     #[error("no suitable Vulkan device: {0}")]
     NoDevice(String),
     /// The chosen device lacks features the engine needs.
     #[error("device '{device}' lacks required features: {}", missing.join(", "))]
     MissingFeatures {
+        /// Name of the device.
         device: String,
+        /// The features it lacks, as `vkdr info` names them.
         missing: Vec<String>,
     },
     /// Device memory could not be allocated.
     #[error("GPU memory allocation failed for '{name}': {reason}")]
-    Allocation { name: String, reason: String },
+    Allocation {
+        /// Name of the buffer or image the memory was for (`allocator` when the allocator
+        /// itself could not be created).
+        name: String,
+        /// Why it failed, usually the allocator's message.
+        reason: String,
+    },
     /// A fence or wait did not signal in time (a software driver can hang instead of
     /// reporting device loss).
     #[error("timed out after {seconds} s waiting for {what}")]
-    Timeout { what: &'static str, seconds: f64 },
+    Timeout {
+        /// What was waited for.
+        what: &'static str,
+        /// How long the wait lasted, seconds.
+        seconds: f64,
+    },
     /// The validation layer reported errors.
     #[error("Vulkan validation reported {} error(s):\n{}", .0.len(), .0.join("\n"))]
     Validation(Vec<String>),
@@ -36,18 +54,26 @@ pub enum Error {
     /// Reading or writing a file failed.
     #[error("{path}: {source}")]
     Io {
+        /// The file.
         path: PathBuf,
+        /// The underlying I/O error.
         #[source]
         source: std::io::Error,
     },
     /// A file could be read but its content is wrong.
     #[error("{path}: {message}")]
-    Format { path: PathBuf, message: String },
+    Format {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with its content.
+        message: String,
+    },
     /// An argument handed in by the caller is invalid.
     #[error("invalid input: {0}")]
     InvalidInput(String),
 }
 
+/// `std::result::Result` with [`Error`] as the default error type.
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 
 /// A number for a message: plain where that is short, else in scientific notation (1e300,

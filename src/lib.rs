@@ -91,6 +91,7 @@
 //! ```
 
 #![warn(unsafe_op_in_unsafe_fn)]
+#![warn(missing_docs)]
 
 pub mod camera;
 pub mod cpd;

@@ -61,10 +61,12 @@ impl Mesh {
         })
     }
 
+    /// Vertex positions (x, y, z), metres.
     pub fn positions(&self) -> &[[f32; 3]] {
         &self.positions
     }
 
+    /// Vertex indices of each triangle, counter-clockwise seen from outside.
     pub fn triangles(&self) -> &[[u32; 3]] {
         &self.triangles
     }
@@ -116,10 +118,12 @@ impl Mesh {
         }
     }
 
+    /// Number of vertices.
     pub fn vertex_count(&self) -> usize {
         self.positions.len()
     }
 
+    /// Number of triangles.
     pub fn triangle_count(&self) -> usize {
         self.triangles.len()
     }

@@ -18,11 +18,14 @@ use crate::gpu::Context;
 use crate::io::write_atomically;
 use crate::mesh::Mesh;
 
+/// Format version written to a shape space's JSON description, and the
+/// one loading requires.
 pub const FORMAT_VERSION: u32 = 1;
 
 /// A category's latent shape space.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ShapeSpace {
+    /// The canonical mesh, whose vertices C the space deforms.
     pub canonical: Mesh,
     /// Kernel width in the data's units (the CPD beta times the canonical's RMS radius).
     pub beta: f64,
@@ -30,6 +33,7 @@ pub struct ShapeSpace {
     pub mean: Vec<f64>,
     /// Principal directions of W, k x 3M.
     pub basis: Vec<Vec<f64>>,
+    /// Singular value of each principal direction (of the centred training W).
     pub singular_values: Vec<f64>,
     /// Latent codes of the training instances, T x k.
     pub training_codes: Vec<Vec<f64>>,
@@ -39,7 +43,9 @@ pub struct ShapeSpace {
     pub offset: Vec<f64>,
     /// B = G U: k x 3M (dimension j's displacement of every vertex).
     pub deformation_basis: Vec<Vec<f64>>,
+    /// Name of the category.
     pub category: String,
+    /// Name of each training instance, in the order of `training_codes`.
     pub training_names: Vec<String>,
 }
 
@@ -48,7 +54,9 @@ pub struct ShapeSpace {
 /// low-rank option).
 #[derive(Clone, Debug)]
 pub struct TrainingFit {
+    /// The coefficients W, flattened M x 3.
     pub w: Vec<f64>,
+    /// The displacement G W, flattened M x 3.
     pub displacement: Vec<f64>,
 }
 
@@ -188,6 +196,7 @@ impl ShapeSpace {
         })
     }
 
+    /// Number of latent dimensions k.
     pub fn dims(&self) -> usize {
         self.basis.len()
     }

@@ -9,12 +9,16 @@ use crate::error::{Error, Result};
 /// A row-major dense matrix.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Matrix {
+    /// Number of rows.
     pub rows: usize,
+    /// Number of columns.
     pub cols: usize,
+    /// Entries row by row, `rows * cols` of them.
     pub data: Vec<f64>,
 }
 
 impl Matrix {
+    /// A `rows` x `cols` matrix of zeros.
     pub fn zeros(rows: usize, cols: usize) -> Self {
         Self {
             rows,
@@ -23,10 +27,12 @@ impl Matrix {
         }
     }
 
+    /// The entry at row `r`, column `c`.
     pub fn at(&self, r: usize, c: usize) -> f64 {
         self.data[r * self.cols + c]
     }
 
+    /// Sets the entry at row `r`, column `c` to `v`.
     pub fn set(&mut self, r: usize, c: usize, v: f64) {
         self.data[r * self.cols + c] = v;
     }
@@ -37,6 +43,7 @@ impl Matrix {
         Matrix::from_faer((self.view() * other.view()).as_ref())
     }
 
+    /// The transpose.
     pub fn transpose(&self) -> Matrix {
         Matrix::from_faer(self.view().transpose())
     }
@@ -46,6 +53,7 @@ impl Matrix {
         MatRef::from_row_major_slice(&self.data, self.rows, self.cols)
     }
 
+    /// A row-major copy of a faer matrix.
     pub fn from_faer(m: MatRef<'_, f64>) -> Matrix {
         let (rows, cols) = (m.nrows(), m.ncols());
         Matrix {

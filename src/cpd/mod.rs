@@ -62,6 +62,7 @@ pub struct CpdParams {
     pub lambda: f64,
     /// Weight of the uniform outlier component, in (0, 1).
     pub w: f64,
+    /// Most EM iterations to run (1 to 100 000).
     pub max_iterations: usize,
     /// Stop when an iteration lowers the objective (the negative log-likelihood plus the
     /// smoothness term) by less than this fraction of it, as Myronenko's reference code
@@ -146,9 +147,12 @@ pub struct CpdResult {
     /// normalised units: one per iteration, except that a kept SQUAREM jump replaces the
     /// two iterations it extrapolates.
     pub sigma2: Vec<f64>,
+    /// EM iterations run (each step of a SQUAREM jump counts; the coarse
+    /// stage's included).
     pub iterations: usize,
     /// Why the iterations ended.
     pub stop: Stop,
+    /// Wall time of the registration, seconds.
     pub seconds: f64,
     /// Gaussian-kernel products of the M-steps, all iterations together.
     pub products: usize,
@@ -160,6 +164,7 @@ pub struct CpdResult {
     /// Source points of the coarse stage ([`CpdParams::coarse`]; 0: none ran), and its
     /// iterations (included in `iterations`; `sigma2` starts with its values).
     pub coarse_points: usize,
+    /// Iterations of the coarse stage (0: none ran).
     pub coarse_iterations: usize,
 }
 
@@ -203,10 +208,15 @@ impl Stop {
 /// sum_n log(sum_m exp(-|x_n - t_m|^2 / (2 sigma^2)) + c), the log-likelihood up to terms
 /// in sigma^2 alone.
 pub struct Expectation {
+    /// P1_m of each source point.
     pub p1: Vec<f64>,
+    /// Pt1_n of each target point.
     pub pt1: Vec<f64>,
+    /// The pull sum_n P_mn (x_n - t_m) of each source point.
     pub pull: Vec<DVec3>,
+    /// The spread sum_n P_mn |x_n - t_m|^2 of each source point.
     pub spread: Vec<f64>,
+    /// sum_n log(sum_m exp(-|x_n - t_m|^2 / (2 sigma^2)) + c).
     pub log_denominators: f64,
 }
 
@@ -258,6 +268,7 @@ pub fn run(
 pub struct Start {
     /// W (M x 3, normalised units).
     pub w: Vec<DVec3>,
+    /// Initial sigma^2, normalised units.
     pub sigma2: f64,
 }
 
@@ -780,6 +791,7 @@ pub struct CpdPipelines {
 }
 
 impl CpdPipelines {
+    /// Builds the E-step and kernel-product pipelines.
     pub fn new(ctx: &Context) -> Result<Self> {
         let b = BindingKind::StorageBuffer;
         Ok(Self {
@@ -850,6 +862,8 @@ pub struct GpuBackend<'a> {
 }
 
 impl<'a> GpuBackend<'a> {
+    /// Uploads `source` and `target` for a kernel of width `beta` (in the points'
+    /// units).
     pub fn new(
         ctx: &'a Context,
         pipelines: &'a CpdPipelines,
@@ -1081,11 +1095,15 @@ fn record_spans(
 /// The joint normalisation: centroid and RMS radius of the source.
 #[derive(Clone, Copy, Debug)]
 pub struct Normalization {
+    /// Centroid of the source.
     pub mean: DVec3,
+    /// RMS radius of the source about its centroid (1 where that is 0 or not
+    /// finite).
     pub scale: f64,
 }
 
 impl Normalization {
+    /// The normalisation of `source`.
     pub fn of(source: &[DVec3]) -> Self {
         let mean = centroid(source);
         let rms = (source
@@ -1104,6 +1122,7 @@ impl Normalization {
         }
     }
 
+    /// `points` relative to `mean`, in units of `scale`.
     pub fn apply(&self, points: &[DVec3]) -> Vec<DVec3> {
         points
             .iter()

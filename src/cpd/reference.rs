@@ -7,6 +7,8 @@ use super::linalg::Matrix;
 use super::{Backend, CpdParams, CpdResult, Expectation};
 use crate::error::Result;
 
+/// The float64 reference [`Backend`]: dense E-step and kernel products on
+/// the host.
 pub struct ReferenceBackend {
     source: Vec<DVec3>,
     target: Vec<DVec3>,

@@ -180,6 +180,7 @@ pub struct Shading {
     /// Direction towards the light in the camera frame (x right, y down, z forward;
     /// normalised on use).
     pub light: [f64; 3],
+    /// Ambient term in `[0, 1)`: the shade of a surface the light does not reach.
     pub ambient: f64,
 }
 
@@ -261,7 +262,9 @@ impl DepthLoss {
 /// antialiased; the silhouette's own gradient comes from the mask term.
 #[derive(Clone, Copy, Debug)]
 pub struct ObservedDepth<'a> {
+    /// Observed depth, `[view][row][column]` in metres, 0 = not measured.
     pub depth: &'a [f32],
+    /// How the depth is compared.
     pub loss: DepthLoss,
 }
 
@@ -367,6 +370,7 @@ pub struct DiffRenderer {
 }
 
 impl DiffRenderer {
+    /// Builds the differentiable renderer's pipelines and its rasterizer.
     pub fn new(ctx: &Context) -> Result<Self> {
         let pass_bytes = std::mem::size_of::<PassConstants>() as u32;
         let bindings = [BindingKind::StorageBuffer; 23];
@@ -440,6 +444,7 @@ impl DiffRenderer {
         })
     }
 
+    /// The forward rasterizer the scenes render with.
     pub fn rasterizer(&self) -> &Rasterizer {
         &self.rasterizer
     }
@@ -447,8 +452,11 @@ impl DiffRenderer {
 
 /// What a scene compares: the observed images of every view and how.
 pub struct SceneDesc<'a> {
+    /// The mesh, in object coordinates.
     pub mesh: &'a Mesh,
+    /// The views it is seen in; all share one image size.
     pub views: &'a [View],
+    /// How the rendered images are compared with `observed`.
     pub loss: Loss,
     /// Observed images, `[view][row][column][channel]` with `channels` = attribute channels
     /// (1 for a mask: nonzero = object).
@@ -599,6 +607,8 @@ pub fn check_scene_fits(
 }
 
 impl Scene {
+    /// Uploads the scene `desc` describes; an error for inconsistent inputs or
+    /// buffers past the device's limits.
     pub fn new(ctx: &Context, desc: &SceneDesc) -> Result<Self> {
         let mesh = MeshBuffers::new(ctx, desc.mesh)?;
         let views = ViewBuffers::new(ctx, desc.views)?;

@@ -18,9 +18,11 @@ const MAX_WALK: usize = 65536;
 
 /// Everything the model holds fixed.
 pub struct Problem<'a> {
+    /// Vertex indices of each triangle.
     pub triangles: &'a [[u32; 3]],
     /// As [`super::neighbours`].
     pub neighbours: &'a [u32],
+    /// Camera of each view.
     pub cameras: &'a [Camera],
     /// Triangle id + 1 per pixel, `[view][row][column]` (from the device).
     pub ids: &'a [u32],
@@ -32,6 +34,7 @@ pub struct Problem<'a> {
     pub attributes: Option<(&'a [f64], usize)>,
     /// Lambert shading instead of attributes (one channel).
     pub shading: Option<Shading>,
+    /// How the images are compared.
     pub loss: Loss,
     /// Observed depth, `[view][row][column]` (0: not measured), and how it is compared.
     pub depth: Option<(&'a [f64], DepthLoss)>,
@@ -47,7 +50,9 @@ pub fn depth_term(loss: &DepthLoss, r: f64, pixels: f64) -> f64 {
 /// A pose as the model takes it: camera = rotation * object + translation.
 #[derive(Clone, Copy, Debug)]
 pub struct RigidPose {
+    /// Object-to-camera rotation.
     pub rotation: DMat3,
+    /// The object origin in the camera frame, metres.
     pub translation: DVec3,
 }
 

@@ -128,10 +128,12 @@ impl Buffer {
         Ok(buffer)
     }
 
+    /// Size in bytes: the requested size rounded up to a multiple of 4, at least 4.
     pub fn size(&self) -> u64 {
         self.size
     }
 
+    /// The name given at creation (for messages and validation output).
     pub fn name(&self) -> &str {
         &self.name
     }

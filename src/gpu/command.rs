@@ -72,6 +72,7 @@ impl Context {
 }
 
 impl Recorder {
+    /// Allocates a command buffer from the context's pool and begins recording.
     pub fn new(ctx: &Context) -> Result<Self> {
         let raw = ctx.allocate_command_buffer()?;
         let begin = vk::CommandBufferBeginInfo::default();
@@ -228,11 +229,13 @@ impl Recorder {
         Ok(())
     }
 
+    /// Ends the pass begun by [`Recorder::begin_rendering`].
     pub fn end_rendering(&mut self) {
         // SAFETY: inside a rendering pass begun by `begin_rendering`.
         unsafe { self.device().cmd_end_rendering(self.raw) };
     }
 
+    /// Binds a graphics pipeline for the draws that follow.
     pub fn bind_graphics(&mut self, pipeline: &GraphicsPipeline) {
         self.hold(pipeline.common.held());
         // SAFETY: recording state; the pipeline is held by this recorder.
@@ -245,6 +248,7 @@ impl Recorder {
         };
     }
 
+    /// Binds a compute pipeline for the dispatches that follow.
     pub fn bind_compute(&mut self, pipeline: &ComputePipeline) {
         self.hold(pipeline.common.held());
         // SAFETY: as above.
@@ -457,6 +461,8 @@ impl Recorder {
         }
     }
 
+    /// Copies `size` bytes from `src` at byte `src_offset` into `dst` at byte `dst_offset`;
+    /// the caller keeps both ranges inside their buffers.
     pub fn copy_buffer(
         &mut self,
         src: &Buffer,

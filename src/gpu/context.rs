@@ -68,22 +68,39 @@ impl Default for ContextOptions {
 /// What `vkdr info` prints about the chosen device.
 #[derive(Clone, Debug)]
 pub struct DeviceInfo {
+    /// Position in the loader's device list (what `VKDR_DEVICE` takes as a number).
     pub index: usize,
+    /// Device name as the driver reports it.
     pub name: String,
+    /// Device type: discrete GPU, integrated GPU, virtual GPU, CPU or other.
     pub kind: String,
+    /// Vulkan version the device supports, as major.minor.patch.
     pub api_version: String,
+    /// Driver name (empty when the driver does not report one).
     pub driver_name: String,
+    /// Driver version and build details (empty when not reported).
     pub driver_info: String,
+    /// Bits of sub-pixel precision in rasterization (`subPixelPrecisionBits`).
     pub sub_pixel_precision_bits: u32,
+    /// Largest width or height of a 2D image, pixels (`maxImageDimension2D`).
     pub max_image_dimension_2d: u32,
+    /// Largest range of one storage-buffer binding, bytes (`maxStorageBufferRange`).
     pub max_storage_buffer_range: u32,
+    /// Alignment of a storage-buffer binding's offset, bytes
+    /// (`minStorageBufferOffsetAlignment`).
     pub min_storage_buffer_offset_alignment: u64,
+    /// Most invocations in one compute workgroup (`maxComputeWorkGroupInvocations`).
     pub max_compute_workgroup_invocations: u32,
+    /// Most workgroups one dispatch may have in x, y and z (`maxComputeWorkGroupCount`).
     pub max_compute_workgroup_count: [u32; 3],
+    /// Most bytes of push constants a pipeline may have (`maxPushConstantsSize`).
     pub max_push_constants_size: u32,
     /// Descriptors one push-descriptor set can hold (every pipeline's bindings are pushed).
     pub max_push_descriptors: u32,
+    /// Most storage buffers one shader stage may bind
+    /// (`maxPerStageDescriptorStorageBuffers`).
     pub max_per_stage_storage_buffers: u32,
+    /// Invocations per subgroup (the default subgroup size).
     pub subgroup_size: u32,
     /// Workgroups of 64 invocations that a grid-stride pass (one that loops over its
     /// items with the grid's size as stride) is dispatched with at most: enough to fill a
@@ -91,7 +108,10 @@ pub struct DeviceInfo {
     /// it loads before its loop (at 1e5 vertices the pose pass took 9 ms on lavapipe
     /// with 4096 workgroups, about 1 ms with 32).
     pub grid_groups: u32,
+    /// Nanoseconds per timestamp tick (`timestampPeriod`).
     pub timestamp_period_ns: f32,
+    /// Each feature the engine needs, by name, and whether the device has it, in the
+    /// order `vkdr info` prints.
     pub features: Vec<(&'static str, bool)>,
 }
 
@@ -129,6 +149,9 @@ impl Context {
         Self::with_options(ContextOptions::default())
     }
 
+    /// Creates a context with explicit options. Fails with [`Error::Loader`] without a Vulkan
+    /// loader, [`Error::NoDevice`] when no device matches, and [`Error::MissingFeatures`] when
+    /// the matching devices lack a feature the engine needs.
     pub fn with_options(options: ContextOptions) -> Result<Self> {
         // SAFETY: loading the Vulkan loader library; its entry points are trusted.
         let entry = unsafe { ash::Entry::load() }.map_err(|e| {

@@ -13,10 +13,15 @@ use crate::error::{Error, Result};
 /// The pixel formats the engine uses.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Format {
+    /// One 32-bit unsigned integer channel (triangle ids).
     R32Uint,
+    /// One 32-bit float channel.
     R32Float,
+    /// Two 32-bit float channels (barycentrics).
     Rg32Float,
+    /// Four 8-bit normalized channels (colour images).
     Rgba8Unorm,
+    /// 32-bit float depth (depth-test attachments).
     D32Float,
 }
 
@@ -39,6 +44,7 @@ impl Format {
         }
     }
 
+    /// Whether this is a depth format (used as a depth attachment, not a colour one).
     pub fn is_depth(self) -> bool {
         self == Format::D32Float
     }
@@ -265,18 +271,22 @@ impl Image {
         self.memory.clone()
     }
 
+    /// Width in pixels.
     pub fn width(&self) -> u32 {
         self.width
     }
 
+    /// Height in pixels.
     pub fn height(&self) -> u32 {
         self.height
     }
 
+    /// Number of array layers (one per view).
     pub fn layers(&self) -> u32 {
         self.layers
     }
 
+    /// Pixel format.
     pub fn format(&self) -> Format {
         self.format
     }

@@ -11,7 +11,9 @@ use crate::error::{Error, Result};
 /// The kind of resource a pipeline binding (set 0, binding = position) takes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum BindingKind {
+    /// A storage buffer, pushed as [`Binding::Buffer`].
     StorageBuffer,
+    /// A storage image, pushed as [`Binding::Image`].
     StorageImage,
 }
 
@@ -20,8 +22,12 @@ pub enum Binding<'a> {
     /// A byte range of a buffer (offset aligned to the device's
     /// `minStorageBufferOffsetAlignment`).
     Buffer {
+        /// The buffer.
         buffer: &'a Buffer,
+        /// Start of the range, bytes.
         offset: u64,
+        /// Length of the range, bytes (at most the device's `maxStorageBufferRange`, else
+        /// [`super::Recorder::finish`] fails with [`Error::Limit`]).
         range: u64,
     },
     /// All layers of an image, in the storage state.
@@ -163,6 +169,9 @@ pub struct ComputePipeline {
 }
 
 impl ComputePipeline {
+    /// A compute pipeline from SPIR-V (entry point `main`) with `bindings` in set 0, in
+    /// binding order, and `push_constant_bytes` of push constants. Fails with
+    /// [`Error::Limit`] when the layout exceeds the device's limits.
     pub fn new(
         ctx: &Context,
         name: &str,
@@ -209,12 +218,19 @@ impl ComputePipeline {
 /// pulled from storage buffers), no culling, dynamic viewport and scissor, and, with a
 /// depth attachment, a reverse-Z depth test (greater wins, cleared to 0).
 pub struct GraphicsPipelineDesc<'a> {
+    /// Name for validation messages and debug tools.
     pub name: &'a str,
+    /// Vertex shader SPIR-V (entry point `main`).
     pub vertex: &'a [u32],
+    /// Fragment shader SPIR-V (entry point `main`).
     pub fragment: &'a [u32],
+    /// Kinds of the set-0 bindings, in binding order (both stages see them).
     pub bindings: &'a [BindingKind],
+    /// Size of the push constants both stages see, bytes (0 for none).
     pub push_constant_bytes: u32,
+    /// Formats of the colour attachments, in attachment order.
     pub color_formats: &'a [Format],
+    /// Format of the depth attachment; `None` turns the depth test off.
     pub depth_format: Option<Format>,
 }
 
@@ -224,6 +240,8 @@ pub struct GraphicsPipeline {
 }
 
 impl GraphicsPipeline {
+    /// Builds the pipeline `desc` describes. Fails with [`Error::Limit`] when the layout exceeds
+    /// the device's limits.
     pub fn new(ctx: &Context, desc: &GraphicsPipelineDesc) -> Result<Self> {
         let stages = vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::FRAGMENT;
         let (set_layout, layout) =

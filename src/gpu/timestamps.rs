@@ -29,6 +29,7 @@ impl Drop for QueryPool {
 }
 
 impl Timestamps {
+    /// A query pool of `count` timestamp slots.
     pub fn new(ctx: &Context, count: u32) -> Result<Self> {
         let info = vk::QueryPoolCreateInfo::default()
             .query_type(vk::QueryType::TIMESTAMP)
@@ -51,6 +52,7 @@ impl Timestamps {
         self.owned.clone()
     }
 
+    /// Number of timestamp slots.
     pub fn count(&self) -> u32 {
         self.count
     }

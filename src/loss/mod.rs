@@ -43,6 +43,7 @@ impl Loss {
         }
     }
 
+    /// The lower-case name that `from_str` parses (`mse`, `iou`, `distance`).
     pub fn name(self) -> &'static str {
         match self {
             Loss::Mse => "mse",
@@ -201,6 +202,7 @@ pub struct DistanceField {
 }
 
 impl DistanceField {
+    /// Builds the jump-flooding pipelines.
     pub fn new(ctx: &Context) -> Result<Self> {
         let constants = std::mem::size_of::<DistanceConstants>() as u32;
         let pipeline = |name, code| {

@@ -30,7 +30,9 @@ const SHADED_FRAG: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/shaded.frag
 /// One camera looking at the mesh from one pose.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct View {
+    /// Intrinsics and image size.
     pub camera: Camera,
+    /// Object-to-camera transform.
     pub pose: Pose,
 }
 
@@ -48,6 +50,7 @@ pub struct ViewData {
 }
 
 impl ViewData {
+    /// The shader data of `view` (its triangles start at 0).
     pub fn new(view: &View) -> Self {
         let c = &view.camera;
         Self {
@@ -120,14 +123,17 @@ impl ViewBuffers {
         self.views.write(0, &data)
     }
 
+    /// Number of views.
     pub fn count(&self) -> u32 {
         self.count
     }
 
+    /// Image width of every view, pixels.
     pub fn width(&self) -> u32 {
         self.width
     }
 
+    /// Image height of every view, pixels.
     pub fn height(&self) -> u32 {
         self.height
     }
@@ -207,6 +213,8 @@ pub fn provoking_order(mesh: &Mesh) -> (Vec<u32>, Vec<u32>) {
 }
 
 impl MeshBuffers {
+    /// Uploads `mesh`; an error when a buffer would exceed the device's storage
+    /// buffer range or the mesh has too many triangles.
     pub fn new(ctx: &Context, mesh: &Mesh) -> Result<Self> {
         // A buffer that the vertex stage binds whole must fit one storage-buffer range.
         let limit = ctx.info().max_storage_buffer_range as u64;
@@ -248,14 +256,17 @@ impl MeshBuffers {
         &self.positions
     }
 
+    /// The triangle buffer (3 vertex indices, u32, per triangle).
     pub fn triangles(&self) -> &Buffer {
         &self.triangles
     }
 
+    /// Number of vertices.
     pub fn vertex_count(&self) -> u32 {
         self.vertex_count
     }
 
+    /// Number of triangles.
     pub fn triangle_count(&self) -> u32 {
         self.triangle_count
     }
@@ -277,8 +288,13 @@ pub enum Outputs {
 /// background), optionally barycentrics (`RG32_SFLOAT`, weights of corners 0 and 1) and
 /// camera-space depth (`R32_SFLOAT`, 0 = background), and the depth-test buffer.
 pub struct Gbuffer {
+    /// Triangle id + 1 per pixel (`R32_UINT`), 0 = background.
     pub ids: Image,
+    /// Barycentric weights of corners 0 and 1 (`RG32_SFLOAT`); `None` with
+    /// [`Outputs::Ids`].
     pub bary: Option<Image>,
+    /// Camera-space depth (`R32_SFLOAT`), 0 = background; only with
+    /// [`Outputs::IdsBaryDepth`].
     pub depth: Option<Image>,
     depth_test: Image,
     outputs: Outputs,
@@ -317,18 +333,22 @@ impl Gbuffer {
         })
     }
 
+    /// Image width, pixels.
     pub fn width(&self) -> u32 {
         self.ids.width()
     }
 
+    /// Image height, pixels.
     pub fn height(&self) -> u32 {
         self.ids.height()
     }
 
+    /// Number of views (image layers).
     pub fn views(&self) -> u32 {
         self.ids.layers()
     }
 
+    /// Which outputs the G-buffer holds.
     pub fn outputs(&self) -> Outputs {
         self.outputs
     }
@@ -365,6 +385,7 @@ pub struct GbufferReadback {
 }
 
 impl GbufferReadback {
+    /// Readback buffers sized for `gbuffer`'s output images.
     pub fn new(ctx: &Context, gbuffer: &Gbuffer) -> Result<Self> {
         let buffer =
             |name, image: &Image| Buffer::new(ctx, name, image.byte_size(), BufferKind::Readback);
@@ -444,6 +465,7 @@ pub struct Rasterizer {
 }
 
 impl Rasterizer {
+    /// Builds the G-buffer and shaded-render pipelines.
     pub fn new(ctx: &Context) -> Result<Self> {
         let vertex = spirv(GBUFFER_VERT)?;
         let gbuffer_pipeline = |name, fragment: &[u8], colors: &[Format]| {
@@ -702,11 +724,13 @@ impl Rasterizer {
 
 /// Colour and depth-test images of the plain shaded render.
 pub struct ShadedTarget {
+    /// Colour image (`RGBA8_UNORM`), one layer per view.
     pub colour: Image,
     depth_test: Image,
 }
 
 impl ShadedTarget {
+    /// Images for `views` views of `width` x `height`.
     pub fn new(ctx: &Context, width: u32, height: u32, views: u32) -> Result<Self> {
         Ok(Self {
             colour: Image::new(

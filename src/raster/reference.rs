@@ -12,7 +12,9 @@ use crate::mesh::Mesh;
 /// The reference G-buffer of one view, row-major.
 #[derive(Clone, Debug)]
 pub struct ReferenceGbuffer {
+    /// Image width, pixels.
     pub width: usize,
+    /// Image height, pixels.
     pub height: usize,
     /// Triangle id + 1, 0 = background.
     pub ids: Vec<u32>,

@@ -54,6 +54,7 @@ pub enum Optimizer {
 }
 
 impl Optimizer {
+    /// The lower-case name that `from_str` parses (`sgd`, `adam`, `bfgs`).
     pub fn name(self) -> &'static str {
         match self {
             Self::Sgd => "sgd",
@@ -89,7 +90,9 @@ const MAX_DIMS: usize = 4096;
 /// How to register.
 #[derive(Clone, Copy, Debug)]
 pub struct RegisterParams {
+    /// Iterations of the registration, besides the pose alignment's `align`.
     pub iterations: usize,
+    /// Momentum of SGD (Adam's first-moment decay), in `[0, 1)`.
     pub momentum: f64,
     /// Learning-rate decay per iteration.
     pub decay: f64,
@@ -102,13 +105,17 @@ pub struct RegisterParams {
     /// with `align_loss` (the shape would otherwise bend to explain a misaligned
     /// silhouette, and a distance loss reaches further than a mask loss).
     pub align: usize,
+    /// Loss of the pose alignment stage.
     pub align_loss: Loss,
     /// Let the z translation move too (ill-posed with shape from one view).
     pub optimize_z: bool,
     /// First translation and rotation steps of the pose (metres, radians).
     pub translation_step: f64,
+    /// First rotation step of the pose, radians.
     pub rotation_step: f64,
+    /// How the code (and the pose) are updated.
     pub optimizer: Optimizer,
+    /// Loss against each job's mask after the alignment.
     pub loss: Loss,
     /// Compare Lambert shading with each job's `shaded` image instead of the mask (the
     /// pose alignment still compares masks); the loss must be mse.
@@ -126,6 +133,8 @@ pub struct RegisterParams {
     /// Read the loss back every this many iterations; stop when it improved by less than
     /// `plateau` (relative) over the last chunk.
     pub check_every: usize,
+    /// Relative improvement over a chunk below which a registration stops, in
+    /// `[0, 1)`.
     pub plateau: f64,
 }
 
@@ -312,13 +321,20 @@ pub struct Registrar {
 pub struct Registration {
     /// Latent code in the shape space's units (as `ShapeSpace::vertices` takes it).
     pub code: Vec<f64>,
+    /// Object-to-camera pose of the (first) view at the end; the job's initial pose
+    /// when the pose stays fixed.
     pub pose: Pose,
+    /// Vertices of the canonical mesh deformed by `code`, in the object frame.
     pub vertices: Vec<DVec3>,
     /// Loss before each iteration.
     pub losses: Vec<f64>,
     /// Latent code after each iteration (shape space units).
     pub codes: Vec<Vec<f64>>,
+    /// Iterations run, the alignment's included (fewer than asked when the loss
+    /// reached its plateau).
     pub iterations: usize,
+    /// Wall time from the start of the call until this registration finished,
+    /// milliseconds.
     pub milliseconds: f64,
     /// Code coordinates on the optimiser's bound at the end (+-[`CODE_BOUND`] in its
     /// coordinates).
@@ -331,6 +347,7 @@ pub struct Registration {
 pub const CODE_BOUND: f64 = 3.0;
 
 impl Registrar {
+    /// Builds the registration pipelines and a differentiable renderer.
     pub fn new(ctx: &Context) -> Result<Self> {
         let b = BindingKind::StorageBuffer;
         Ok(Self {
@@ -361,6 +378,7 @@ impl Registrar {
         })
     }
 
+    /// The differentiable renderer the registrations use.
     pub fn renderer(&self) -> &DiffRenderer {
         &self.renderer
     }
@@ -653,6 +671,7 @@ pub struct PassTimes {
     pub backward: f64,
     /// dL/ds and the optimiser step.
     pub update: f64,
+    /// The whole iteration, from the start of deform to the end of the update.
     pub total: f64,
 }
 
@@ -661,7 +680,9 @@ pub struct PassTimes {
 /// `from_first.apply(x)` in this one's). Its image has the first view's size.
 #[derive(Clone, Copy, Debug)]
 pub struct OtherView {
+    /// Intrinsics and image size of this camera.
     pub camera: Camera,
+    /// Transform from the first camera's frame to this camera's frame.
     pub from_first: Pose,
 }
 
@@ -674,11 +695,18 @@ pub struct OtherView {
 /// `[view][row][column]`, the first view first.
 #[derive(Clone, Copy)]
 pub struct Job<'a> {
+    /// The shape space whose latent code is fitted.
     pub space: &'a ShapeSpace,
+    /// Observed mask, `[row][column]` (`[view][row][column]` with `others`),
+    /// nonzero = object.
     pub observed: &'a [f32],
+    /// Observed grey shading in the mask's layout, background 0.
     pub shaded: Option<&'a [f32]>,
+    /// Observed depth in the mask's layout, metres, 0 = not measured.
     pub depth: Option<&'a [f32]>,
+    /// The (first) camera and the initial object pose.
     pub view: View,
+    /// Further cameras of a multi-view registration (empty: one view).
     pub others: &'a [OtherView],
 }
 
