@@ -104,6 +104,7 @@ pub mod mesh;
 pub mod raster;
 pub mod register;
 pub mod rng;
+pub mod shaders;
 pub mod shape;
 
 pub use camera::{Camera, Pose};

@@ -33,16 +33,13 @@ use glam::DVec3;
 
 use crate::error::{show, Error, Result};
 use crate::gpu::{
-    spans, spirv, Binding, BindingKind, Buffer, BufferKind, ComputePipeline, Context, Groups,
-    Recorder, LOOP_LIMIT,
+    spans, Binding, Buffer, BufferKind, ComputePipeline, Context, Groups, Recorder, LOOP_LIMIT,
 };
 use crate::mesh::centroid;
+use crate::shaders;
 use linalg::Matrix;
 use m_step::MStep;
 
-const DENOMINATOR: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/cpd_denominator.comp.spv"));
-const ACCUMULATE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/cpd_accumulate.comp.spv"));
-const GAUSS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/gauss_product.comp.spv"));
 /// Points served per invocation by the passes above (`ROWS` in `glsl/include/cpd.glsl`).
 const ROWS: u32 = 8;
 const _: () = assert!(neighbours::POINTS_PER_GROUP == 64 * ROWS as usize);
@@ -780,8 +777,9 @@ struct EstepConstants {
     piece: u32,
     pieces: u32,
 }
-
-const ESTEP_CONSTANTS: u32 = std::mem::size_of::<EstepConstants>() as u32;
+const _: () = assert!(shaders::CPD_DENOMINATOR_COMP.takes::<EstepConstants>());
+const _: () = assert!(shaders::CPD_ACCUMULATE_COMP.takes::<EstepConstants>());
+const _: () = assert!(shaders::GAUSS_PRODUCT_COMP.takes::<EstepConstants>());
 
 /// CPD's compute pipelines.
 pub struct CpdPipelines {
@@ -793,29 +791,10 @@ pub struct CpdPipelines {
 impl CpdPipelines {
     /// Builds the E-step and kernel-product pipelines.
     pub fn new(ctx: &Context) -> Result<Self> {
-        let b = BindingKind::StorageBuffer;
         Ok(Self {
-            denominator: ComputePipeline::new(
-                ctx,
-                "cpd denominator",
-                &spirv(DENOMINATOR)?,
-                &[b; 5],
-                ESTEP_CONSTANTS,
-            )?,
-            accumulate: ComputePipeline::new(
-                ctx,
-                "cpd accumulate",
-                &spirv(ACCUMULATE)?,
-                &[b; 5],
-                ESTEP_CONSTANTS,
-            )?,
-            gauss: ComputePipeline::new(
-                ctx,
-                "gauss product",
-                &spirv(GAUSS)?,
-                &[b; 3],
-                ESTEP_CONSTANTS,
-            )?,
+            denominator: ComputePipeline::new(ctx, &shaders::CPD_DENOMINATOR_COMP)?,
+            accumulate: ComputePipeline::new(ctx, &shaders::CPD_ACCUMULATE_COMP)?,
+            gauss: ComputePipeline::new(ctx, &shaders::GAUSS_PRODUCT_COMP)?,
         })
     }
 }

@@ -21,23 +21,13 @@ use bytemuck::{Pod, Zeroable};
 
 use crate::error::{Error, Result};
 use crate::gpu::{
-    spirv, Binding, BindingKind, Buffer, BufferKind, ComputePipeline, Context, Groups, ImageState,
-    Recorder, Recording, Timestamps,
+    Binding, Buffer, BufferKind, ComputePipeline, Context, Groups, ImageState, Recorder, Recording,
+    Timestamps,
 };
 use crate::loss::{DistanceField, Loss};
 use crate::mesh::Mesh;
 use crate::raster::{Gbuffer, MeshBuffers, Outputs, Rasterizer, View, ViewBuffers};
-
-const CLASSIFY: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/classify.comp.spv"));
-const WORK_ARGS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/work_args.comp.spv"));
-const ANTIALIAS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/antialias.comp.spv"));
-const BACKWARD: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/antialias_backward.comp.spv"));
-const FINALIZE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/loss_finalize.comp.spv"));
-const POSE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/pose_gradient.comp.spv"));
-const RESOLVE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/fixed_resolve.comp.spv"));
-const LAMBERT: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/lambert.comp.spv"));
-const BOUNDS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/bounds.comp.spv"));
-const DEPTH: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/depth.comp.spv"));
+use crate::shaders;
 
 /// Depth residuals are clamped to this many metres (as in `glsl/include/diff_pass.glsl`),
 /// which bounds the fixed-point loss sums.
@@ -277,6 +267,7 @@ struct LambertConstants {
     light: [f32; 3],
     stride: u32,
 }
+const _: () = assert!(shaders::LAMBERT_COMP.takes::<LambertConstants>());
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -286,6 +277,7 @@ struct DepthConstants {
     channels: u32,
     coverage: u32,
 }
+const _: () = assert!(shaders::DEPTH_COMP.takes::<DepthConstants>());
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -302,6 +294,10 @@ struct PassConstants {
     depth_scale: f32,
     depth_weight: f32,
 }
+const _: () = assert!(shaders::CLASSIFY_COMP.takes::<PassConstants>());
+const _: () = assert!(shaders::ANTIALIAS_COMP.takes::<PassConstants>());
+const _: () = assert!(shaders::ANTIALIAS_BACKWARD_COMP.takes::<PassConstants>());
+const _: () = assert!(shaders::BOUNDS_COMP.takes::<PassConstants>());
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -309,6 +305,7 @@ struct FinalizeConstants {
     loss: u32,
     stats_shift: i32,
 }
+const _: () = assert!(shaders::LOSS_FINALIZE_COMP.takes::<FinalizeConstants>());
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -317,6 +314,7 @@ struct ResolveConstants {
     max_slot: u32,
     terms_per_listed: u32,
 }
+const _: () = assert!(shaders::FIXED_RESOLVE_COMP.takes::<ResolveConstants>());
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -330,6 +328,7 @@ struct PoseConstants {
     max_slot: u32,
     terms_per_listed: u32,
 }
+const _: () = assert!(shaders::POSE_GRADIENT_COMP.takes::<PoseConstants>());
 
 /// The scale (2^shift) of the fixed-point loss sums: every sum of a view's per-pixel terms
 /// stays below 2^61 for any image the scene can render, from a bound on the terms (images
@@ -369,77 +368,25 @@ pub struct DiffRenderer {
     distance: DistanceField,
 }
 
+// work_args.comp takes the largest workgroup count alone.
+const _: () = assert!(shaders::WORK_ARGS_COMP.takes::<u32>());
+
 impl DiffRenderer {
     /// Builds the differentiable renderer's pipelines and its rasterizer.
     pub fn new(ctx: &Context) -> Result<Self> {
-        let pass_bytes = std::mem::size_of::<PassConstants>() as u32;
-        let bindings = [BindingKind::StorageBuffer; 23];
+        let pipeline = |shader| ComputePipeline::new(ctx, shader);
         Ok(Self {
             rasterizer: Rasterizer::new(ctx)?,
-            classify: ComputePipeline::new(
-                ctx,
-                "classify",
-                &spirv(CLASSIFY)?,
-                &bindings,
-                pass_bytes,
-            )?,
-            work_args: ComputePipeline::new(
-                ctx,
-                "work arguments",
-                &spirv(WORK_ARGS)?,
-                &bindings[..1],
-                4,
-            )?,
-            antialias: ComputePipeline::new(
-                ctx,
-                "antialias",
-                &spirv(ANTIALIAS)?,
-                &bindings,
-                pass_bytes,
-            )?,
-            backward: ComputePipeline::new(
-                ctx,
-                "antialias backward",
-                &spirv(BACKWARD)?,
-                &bindings,
-                pass_bytes,
-            )?,
-            finalize: ComputePipeline::new(
-                ctx,
-                "loss finalize",
-                &spirv(FINALIZE)?,
-                &bindings[..2],
-                std::mem::size_of::<FinalizeConstants>() as u32,
-            )?,
-            pose: ComputePipeline::new(
-                ctx,
-                "pose gradient",
-                &spirv(POSE)?,
-                &[BindingKind::StorageBuffer; 9],
-                std::mem::size_of::<PoseConstants>() as u32,
-            )?,
-            resolve: ComputePipeline::new(
-                ctx,
-                "fixed-point resolve",
-                &spirv(RESOLVE)?,
-                &[BindingKind::StorageBuffer; 3],
-                std::mem::size_of::<ResolveConstants>() as u32,
-            )?,
-            lambert: ComputePipeline::new(
-                ctx,
-                "lambert",
-                &spirv(LAMBERT)?,
-                &[BindingKind::StorageBuffer; 9],
-                std::mem::size_of::<LambertConstants>() as u32,
-            )?,
-            bounds: ComputePipeline::new(ctx, "bounds", &spirv(BOUNDS)?, &bindings, pass_bytes)?,
-            depth: ComputePipeline::new(
-                ctx,
-                "depth",
-                &spirv(DEPTH)?,
-                &[BindingKind::StorageBuffer; 5],
-                std::mem::size_of::<DepthConstants>() as u32,
-            )?,
+            classify: pipeline(&shaders::CLASSIFY_COMP)?,
+            work_args: pipeline(&shaders::WORK_ARGS_COMP)?,
+            antialias: pipeline(&shaders::ANTIALIAS_COMP)?,
+            backward: pipeline(&shaders::ANTIALIAS_BACKWARD_COMP)?,
+            finalize: pipeline(&shaders::LOSS_FINALIZE_COMP)?,
+            pose: pipeline(&shaders::POSE_GRADIENT_COMP)?,
+            resolve: pipeline(&shaders::FIXED_RESOLVE_COMP)?,
+            lambert: pipeline(&shaders::LAMBERT_COMP)?,
+            bounds: pipeline(&shaders::BOUNDS_COMP)?,
+            depth: pipeline(&shaders::DEPTH_COMP)?,
             distance: DistanceField::new(ctx)?,
         })
     }

@@ -7,8 +7,8 @@ use ash::vk;
 
 use super::pipeline::PipelineCommon;
 use super::{
-    vk_err, Binding, Buffer, ComputePipeline, Context, GraphicsPipeline, Held, Image, ImageState,
-    Timestamps,
+    vk_err, Binding, BindingKind, Buffer, ComputePipeline, Context, GraphicsPipeline, Held, Image,
+    ImageState, Timestamps,
 };
 use crate::error::{Error, Result};
 
@@ -277,13 +277,29 @@ impl Recorder {
         bind_point: vk::PipelineBindPoint,
         bindings: &[Binding],
     ) {
-        assert_eq!(
-            bindings.len(),
-            pipeline.bindings.len(),
-            "binding count must match the pipeline's layout"
-        );
+        // `bindings` is indexed by binding number; the pipeline takes those its shaders
+        // declare (build.rs reflects them), each of the kind they declare.
+        let taken: Vec<(u32, &Binding)> = pipeline
+            .bindings
+            .iter()
+            .map(|&(number, kind)| {
+                let binding = bindings.get(number as usize).unwrap_or_else(|| {
+                    panic!(
+                        "no resource for binding {number} ({} given)",
+                        bindings.len()
+                    )
+                });
+                let matches = matches!(
+                    (binding, kind),
+                    (Binding::Buffer { .. }, BindingKind::StorageBuffer)
+                        | (Binding::Image(_), BindingKind::StorageImage)
+                );
+                assert!(matches, "binding {number} takes a {kind:?}");
+                (number, binding)
+            })
+            .collect();
         let max = self.ctx.info().max_storage_buffer_range as u64;
-        for binding in bindings {
+        for (_, binding) in &taken {
             if let Binding::Buffer { buffer, range, .. } = binding {
                 if *range > max {
                     self.refused.get_or_insert(Error::Limit(format!(
@@ -300,15 +316,15 @@ impl Recorder {
         if self.refused.is_some() {
             return;
         }
-        for binding in bindings {
+        for (_, binding) in &taken {
             self.hold(match binding {
                 Binding::Buffer { buffer, .. } => buffer.held(),
                 Binding::Image(image) => image.held(),
             });
         }
-        let buffer_infos: Vec<[vk::DescriptorBufferInfo; 1]> = bindings
+        let buffer_infos: Vec<[vk::DescriptorBufferInfo; 1]> = taken
             .iter()
-            .map(|b| match b {
+            .map(|(_, b)| match b {
                 Binding::Buffer {
                     buffer,
                     offset,
@@ -320,20 +336,20 @@ impl Recorder {
                 Binding::Image(_) => [vk::DescriptorBufferInfo::default()],
             })
             .collect();
-        let image_infos: Vec<[vk::DescriptorImageInfo; 1]> = bindings
+        let image_infos: Vec<[vk::DescriptorImageInfo; 1]> = taken
             .iter()
-            .map(|b| match b {
+            .map(|(_, b)| match b {
                 Binding::Image(image) => [vk::DescriptorImageInfo::default()
                     .image_view(image.array_view)
                     .image_layout(vk::ImageLayout::GENERAL)],
                 Binding::Buffer { .. } => [vk::DescriptorImageInfo::default()],
             })
             .collect();
-        let writes: Vec<_> = bindings
+        let writes: Vec<_> = taken
             .iter()
             .enumerate()
-            .map(|(i, b)| {
-                let write = vk::WriteDescriptorSet::default().dst_binding(i as u32);
+            .map(|(i, (number, b))| {
+                let write = vk::WriteDescriptorSet::default().dst_binding(*number);
                 match b {
                     Binding::Buffer { .. } => write
                         .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)

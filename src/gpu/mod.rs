@@ -31,7 +31,9 @@ pub use buffer::{Buffer, BufferKind};
 pub use command::{Groups, Recorder, Recording, RenderTarget};
 pub use context::{Context, ContextOptions, DeviceInfo};
 pub use image::{Format, Image, ImageState};
-pub use pipeline::{Binding, BindingKind, ComputePipeline, GraphicsPipeline, GraphicsPipelineDesc};
+pub use pipeline::{
+    Binding, BindingKind, ComputePipeline, GraphicsPipeline, GraphicsPipelineDesc, Shader,
+};
 pub use timestamps::Timestamps;
 
 use ash::vk;

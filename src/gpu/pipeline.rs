@@ -8,7 +8,30 @@ use ash::vk;
 use super::{vk_err, Buffer, Context, DeviceInfo, Format, Held, Image};
 use crate::error::{Error, Result};
 
-/// The kind of resource a pipeline binding (set 0, binding = position) takes.
+/// A shader as `build.rs` compiled and reflected it (`crate::shaders` has one per file in
+/// `glsl/`): what a pipeline layout needs comes from the module itself.
+#[derive(Clone, Copy, Debug)]
+pub struct Shader {
+    /// The file in `glsl/`.
+    pub name: &'static str,
+    /// SPIR-V bytes (entry point `main`).
+    pub spirv: &'static [u8],
+    /// The set-0 bindings the module declares: binding number and kind, ascending.
+    pub bindings: &'static [(u32, BindingKind)],
+    /// Size of the module's push-constant block, bytes (0: none).
+    pub push_constant_bytes: u32,
+}
+
+impl Shader {
+    /// Whether `T` is exactly the size of the module's push-constant block: assert it at
+    /// compile time beside each push-constant struct,
+    /// `const _: () = assert!(shaders::CLASSIFY_COMP.takes::<PassConstants>());`.
+    pub const fn takes<T>(&self) -> bool {
+        std::mem::size_of::<T>() == self.push_constant_bytes as usize
+    }
+}
+
+/// The kind of resource a pipeline binding (set 0) takes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum BindingKind {
     /// A storage buffer, pushed as [`Binding::Buffer`].
@@ -51,7 +74,8 @@ pub(crate) struct PipelineCommon {
     pub(crate) pipeline: vk::Pipeline,
     pub(crate) layout: vk::PipelineLayout,
     set_layout: vk::DescriptorSetLayout,
-    pub(crate) bindings: Vec<BindingKind>,
+    /// Binding numbers and kinds of set 0, ascending.
+    pub(crate) bindings: Vec<(u32, BindingKind)>,
     pub(crate) push_constant_bytes: u32,
     pub(crate) stages: vk::ShaderStageFlags,
 }
@@ -59,7 +83,7 @@ pub(crate) struct PipelineCommon {
 impl PipelineCommon {
     fn layouts(
         ctx: &Context,
-        bindings: &[BindingKind],
+        bindings: &[(u32, BindingKind)],
         push_constant_bytes: u32,
         stages: vk::ShaderStageFlags,
     ) -> Result<(vk::DescriptorSetLayout, vk::PipelineLayout)> {
@@ -67,10 +91,9 @@ impl PipelineCommon {
         let device = ctx.device();
         let raw_bindings: Vec<_> = bindings
             .iter()
-            .enumerate()
-            .map(|(i, kind)| {
+            .map(|&(binding, kind)| {
                 vk::DescriptorSetLayoutBinding::default()
-                    .binding(i as u32)
+                    .binding(binding)
                     .descriptor_type(match kind {
                         BindingKind::StorageBuffer => vk::DescriptorType::STORAGE_BUFFER,
                         BindingKind::StorageImage => vk::DescriptorType::STORAGE_IMAGE,
@@ -102,10 +125,14 @@ impl PipelineCommon {
 }
 
 /// An error naming the device limit a pipeline's bindings or push constants pass.
-fn check_layout_fits(info: &DeviceInfo, bindings: &[BindingKind], push_bytes: u32) -> Result<()> {
+fn check_layout_fits(
+    info: &DeviceInfo,
+    bindings: &[(u32, BindingKind)],
+    push_bytes: u32,
+) -> Result<()> {
     let buffers = bindings
         .iter()
-        .filter(|b| matches!(b, BindingKind::StorageBuffer))
+        .filter(|b| matches!(b.1, BindingKind::StorageBuffer))
         .count() as u32;
     let checks = [
         (
@@ -169,20 +196,16 @@ pub struct ComputePipeline {
 }
 
 impl ComputePipeline {
-    /// A compute pipeline from SPIR-V (entry point `main`) with `bindings` in set 0, in
-    /// binding order, and `push_constant_bytes` of push constants. Fails with
-    /// [`Error::Limit`] when the layout exceeds the device's limits.
-    pub fn new(
-        ctx: &Context,
-        name: &str,
-        spirv: &[u32],
-        bindings: &[BindingKind],
-        push_constant_bytes: u32,
-    ) -> Result<Self> {
+    /// A compute pipeline from a reflected shader: its set-0 bindings and push-constant
+    /// size are the module's own. Fails with [`Error::Limit`] when the layout exceeds the
+    /// device's limits.
+    pub fn new(ctx: &Context, shader: &Shader) -> Result<Self> {
         let stages = vk::ShaderStageFlags::COMPUTE;
+        let (bindings, push_constant_bytes) = (shader.bindings, shader.push_constant_bytes);
         let (set_layout, layout) =
             PipelineCommon::layouts(ctx, bindings, push_constant_bytes, stages)?;
-        let module = shader_module(ctx, spirv)?;
+        let spirv = super::spirv(shader.spirv)?;
+        let module = shader_module(ctx, &spirv)?;
         let stage = vk::PipelineShaderStageCreateInfo::default()
             .stage(stages)
             .module(module)
@@ -199,7 +222,7 @@ impl ComputePipeline {
             created
         };
         let pipeline = created.map_err(|(_, e)| vk_err("vkCreateComputePipelines")(e))?[0];
-        ctx.name_object(pipeline, name);
+        ctx.name_object(pipeline, shader.name);
         Ok(Self {
             common: Arc::new(PipelineCommon {
                 ctx: ctx.clone(),
@@ -220,14 +243,11 @@ impl ComputePipeline {
 pub struct GraphicsPipelineDesc<'a> {
     /// Name for validation messages and debug tools.
     pub name: &'a str,
-    /// Vertex shader SPIR-V (entry point `main`).
-    pub vertex: &'a [u32],
-    /// Fragment shader SPIR-V (entry point `main`).
-    pub fragment: &'a [u32],
-    /// Kinds of the set-0 bindings, in binding order (both stages see them).
-    pub bindings: &'a [BindingKind],
-    /// Size of the push constants both stages see, bytes (0 for none).
-    pub push_constant_bytes: u32,
+    /// The vertex shader; the pipeline's bindings and push constants are the union of
+    /// both stages' (both stages see them).
+    pub vertex: &'a Shader,
+    /// The fragment shader.
+    pub fragment: &'a Shader,
     /// Formats of the colour attachments, in attachment order.
     pub color_formats: &'a [Format],
     /// Format of the depth attachment; `None` turns the depth test off.
@@ -244,10 +264,28 @@ impl GraphicsPipeline {
     /// the device's limits.
     pub fn new(ctx: &Context, desc: &GraphicsPipelineDesc) -> Result<Self> {
         let stages = vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::FRAGMENT;
+        let mut bindings = desc.vertex.bindings.to_vec();
+        for &(binding, kind) in desc.fragment.bindings {
+            match bindings.iter().find(|b| b.0 == binding) {
+                Some(&(_, other)) if other != kind => {
+                    return Err(Error::InvalidInput(format!(
+                        "{}: binding {binding} is a {other:?} in {} and a {kind:?} in {}",
+                        desc.name, desc.vertex.name, desc.fragment.name
+                    )))
+                }
+                Some(_) => {}
+                None => bindings.push((binding, kind)),
+            }
+        }
+        bindings.sort_by_key(|b| b.0);
+        let push_constant_bytes = desc
+            .vertex
+            .push_constant_bytes
+            .max(desc.fragment.push_constant_bytes);
         let (set_layout, layout) =
-            PipelineCommon::layouts(ctx, desc.bindings, desc.push_constant_bytes, stages)?;
-        let vertex = shader_module(ctx, desc.vertex)?;
-        let fragment = shader_module(ctx, desc.fragment)?;
+            PipelineCommon::layouts(ctx, &bindings, push_constant_bytes, stages)?;
+        let vertex = shader_module(ctx, &super::spirv(desc.vertex.spirv)?)?;
+        let fragment = shader_module(ctx, &super::spirv(desc.fragment.spirv)?)?;
         let shader_stages = [
             vk::PipelineShaderStageCreateInfo::default()
                 .stage(vk::ShaderStageFlags::VERTEX)
@@ -321,8 +359,8 @@ impl GraphicsPipeline {
                 pipeline,
                 layout,
                 set_layout,
-                bindings: desc.bindings.to_vec(),
-                push_constant_bytes: desc.push_constant_bytes,
+                bindings,
+                push_constant_bytes,
                 stages,
             }),
         })
@@ -337,7 +375,8 @@ mod tests {
     fn layouts_past_the_device_limits_are_refused_by_name() {
         let ctx = Context::new().expect("a Vulkan device");
         let mut info = ctx.info().clone();
-        let buffers = [BindingKind::StorageBuffer; 6];
+        let buffers: Vec<(u32, BindingKind)> =
+            (0..6).map(|b| (b, BindingKind::StorageBuffer)).collect();
         assert!(check_layout_fits(&info, &buffers, 16).is_ok());
         info.max_push_descriptors = 5;
         let message = check_layout_fits(&info, &buffers, 16)

@@ -11,13 +11,8 @@ use std::path::Path;
 use bytemuck::{Pod, Zeroable};
 
 use crate::error::{Error, Result};
-use crate::gpu::{
-    spirv, Binding, BindingKind, Buffer, BufferKind, ComputePipeline, Context, Groups, Recorder,
-};
-
-const SEED: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/distance_seed.comp.spv"));
-const JUMP: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/distance_jump.comp.spv"));
-const FINAL: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/distance_final.comp.spv"));
+use crate::gpu::{Binding, Buffer, BufferKind, ComputePipeline, Context, Groups, Recorder};
+use crate::shaders;
 
 /// Which loss compares the rendered image A with the observed image O (N pixels per view;
 /// the total is the sum over views).
@@ -193,6 +188,9 @@ struct DistanceConstants {
     height: u32,
     step: i32,
 }
+const _: () = assert!(shaders::DISTANCE_SEED_COMP.takes::<DistanceConstants>());
+const _: () = assert!(shaders::DISTANCE_JUMP_COMP.takes::<DistanceConstants>());
+const _: () = assert!(shaders::DISTANCE_FINAL_COMP.takes::<DistanceConstants>());
 
 /// Jump-flooding pipelines for signed distance fields of masks.
 pub struct DistanceField {
@@ -204,19 +202,10 @@ pub struct DistanceField {
 impl DistanceField {
     /// Builds the jump-flooding pipelines.
     pub fn new(ctx: &Context) -> Result<Self> {
-        let constants = std::mem::size_of::<DistanceConstants>() as u32;
-        let pipeline = |name, code| {
-            let bindings: &[BindingKind] = if code == FINAL {
-                &[BindingKind::StorageBuffer; 3]
-            } else {
-                &[BindingKind::StorageBuffer; 2]
-            };
-            ComputePipeline::new(ctx, name, &spirv(code)?, bindings, constants)
-        };
         Ok(Self {
-            seed: pipeline("distance seed", SEED)?,
-            jump: pipeline("distance jump", JUMP)?,
-            finish: pipeline("distance final", FINAL)?,
+            seed: ComputePipeline::new(ctx, &shaders::DISTANCE_SEED_COMP)?,
+            jump: ComputePipeline::new(ctx, &shaders::DISTANCE_JUMP_COMP)?,
+            finish: ComputePipeline::new(ctx, &shaders::DISTANCE_FINAL_COMP)?,
         })
     }
 

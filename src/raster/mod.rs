@@ -11,21 +11,11 @@ use ndarray::{Array3, Array4};
 use crate::camera::{Camera, Pose};
 use crate::error::{Error, Result};
 use crate::gpu::{
-    spirv, Binding, BindingKind, Buffer, BufferKind, Context, Format, GraphicsPipeline,
-    GraphicsPipelineDesc, Image, ImageState, Recorder, RenderTarget,
+    Binding, Buffer, BufferKind, Context, Format, GraphicsPipeline, GraphicsPipelineDesc, Image,
+    ImageState, Recorder, RenderTarget,
 };
 use crate::mesh::Mesh;
-
-const GBUFFER_VERT: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/gbuffer.vert.spv"));
-const GBUFFER_FRAG: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/gbuffer.frag.spv"));
-const GBUFFER_INDEXED_VERT: &[u8] =
-    include_bytes!(concat!(env!("OUT_DIR"), "/gbuffer_indexed.vert.spv"));
-const GBUFFER_INDEXED_IDS_FRAG: &[u8] =
-    include_bytes!(concat!(env!("OUT_DIR"), "/gbuffer_indexed_ids.frag.spv"));
-const GBUFFER_DEPTH_FRAG: &[u8] =
-    include_bytes!(concat!(env!("OUT_DIR"), "/gbuffer_depth.frag.spv"));
-const SHADED_VERT: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/shaded.vert.spv"));
-const SHADED_FRAG: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/shaded.frag.spv"));
+use crate::shaders;
 
 /// One camera looking at the mesh from one pose.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -48,6 +38,7 @@ pub struct ViewData {
     near: f32,
     first_triangle: u32,
 }
+const _: () = assert!(shaders::SHADED_VERT.takes::<ViewData>());
 
 impl ViewData {
     /// The shader data of `view` (its triangles start at 0).
@@ -70,6 +61,7 @@ struct GbufferConstants {
     view: u32,
     first_triangle: u32,
 }
+const _: () = assert!(shaders::GBUFFER_VERT.takes::<GbufferConstants>());
 
 /// The views of one mesh on the device: their camera data, read by the G-buffer pass and
 /// by compute passes (which may also update it).
@@ -464,57 +456,47 @@ pub struct Rasterizer {
     chunk_triangles: u32,
 }
 
+// The ids-only pass takes the view (layer) alone.
+const _: () = assert!(shaders::GBUFFER_INDEXED_VERT.takes::<u32>());
+
 impl Rasterizer {
     /// Builds the G-buffer and shaded-render pipelines.
     pub fn new(ctx: &Context) -> Result<Self> {
-        let vertex = spirv(GBUFFER_VERT)?;
-        let gbuffer_pipeline = |name, fragment: &[u8], colors: &[Format]| {
+        let pipeline = |name, vertex, fragment, color_formats: &[Format]| {
             GraphicsPipeline::new(
                 ctx,
                 &GraphicsPipelineDesc {
                     name,
-                    vertex: &vertex,
-                    fragment: &spirv(fragment)?,
-                    bindings: &[BindingKind::StorageBuffer; 3],
-                    push_constant_bytes: std::mem::size_of::<GbufferConstants>() as u32,
-                    color_formats: colors,
+                    vertex,
+                    fragment,
+                    color_formats,
                     depth_format: Some(Format::D32Float),
                 },
             )
         };
-        let gbuffer_ids = GraphicsPipeline::new(
-            ctx,
-            &GraphicsPipelineDesc {
-                name: "gbuffer ids",
-                vertex: &spirv(GBUFFER_INDEXED_VERT)?,
-                fragment: &spirv(GBUFFER_INDEXED_IDS_FRAG)?,
-                bindings: &[BindingKind::StorageBuffer; 3],
-                push_constant_bytes: 4,
-                color_formats: &[Format::R32Uint],
-                depth_format: Some(Format::D32Float),
-            },
+        let gbuffer_ids = pipeline(
+            "gbuffer ids",
+            &shaders::GBUFFER_INDEXED_VERT,
+            &shaders::GBUFFER_INDEXED_IDS_FRAG,
+            &[Format::R32Uint],
         )?;
-        let gbuffer = gbuffer_pipeline(
+        let gbuffer = pipeline(
             "gbuffer",
-            GBUFFER_FRAG,
+            &shaders::GBUFFER_VERT,
+            &shaders::GBUFFER_FRAG,
             &[Format::R32Uint, Format::Rg32Float],
         )?;
-        let gbuffer_with_depth = gbuffer_pipeline(
+        let gbuffer_with_depth = pipeline(
             "gbuffer with depth",
-            GBUFFER_DEPTH_FRAG,
+            &shaders::GBUFFER_VERT,
+            &shaders::GBUFFER_DEPTH_FRAG,
             &[Format::R32Uint, Format::Rg32Float, Format::R32Float],
         )?;
-        let shaded = GraphicsPipeline::new(
-            ctx,
-            &GraphicsPipelineDesc {
-                name: "shaded",
-                vertex: &spirv(SHADED_VERT)?,
-                fragment: &spirv(SHADED_FRAG)?,
-                bindings: &[BindingKind::StorageBuffer],
-                push_constant_bytes: std::mem::size_of::<ViewData>() as u32,
-                color_formats: &[Format::Rgba8Unorm],
-                depth_format: Some(Format::D32Float),
-            },
+        let shaded = pipeline(
+            "shaded",
+            &shaders::SHADED_VERT,
+            &shaders::SHADED_FRAG,
+            &[Format::Rgba8Unorm],
         )?;
         let info = ctx.info();
         // Offsets of chunk ranges must be aligned; 256 triangles = 3 KiB keeps any

@@ -19,20 +19,14 @@ use crate::cpd::linalg::{self, Matrix};
 use crate::diff::{DepthLoss, DiffRenderer, ObservedDepth, Scene, SceneDesc, Shading};
 use crate::error::{Error, Result};
 use crate::gpu::{
-    spans, spirv, Binding, BindingKind, Buffer, ComputePipeline, Context, Groups, Recorder,
-    Recording, Timestamps, LOOP_LIMIT,
+    spans, Binding, Buffer, ComputePipeline, Context, Groups, Recorder, Recording, Timestamps,
+    LOOP_LIMIT,
 };
 use crate::loss::Loss;
 use crate::raster::View;
+use crate::shaders;
 use crate::shape::ShapeSpace;
 use crate::{Camera, Pose};
-
-const DEFORM: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/deform.comp.spv"));
-const LATENT_GRADIENT: &[u8] =
-    include_bytes!(concat!(env!("OUT_DIR"), "/latent_gradient.comp.spv"));
-const OPTIMIZER: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/optimizer.comp.spv"));
-const BFGS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/bfgs.comp.spv"));
-const RIG: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/rig.comp.spv"));
 
 /// The most iterations (or alignment iterations) one registration may ask for.
 pub const MAX_ITERATIONS: usize = 100_000;
@@ -236,6 +230,7 @@ struct DeformConstants {
     dims: u32,
     latent_at: u32,
 }
+const _: () = assert!(shaders::DEFORM_COMP.takes::<DeformConstants>());
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -253,6 +248,8 @@ struct OptimizerConstants {
     pose_only: u32,
     code_prior: f32,
 }
+const _: () = assert!(shaders::OPTIMIZER_COMP.takes::<OptimizerConstants>());
+const _: () = assert!(shaders::BFGS_COMP.takes::<OptimizerConstants>());
 
 /// Offsets of the optimiser state (mirrors `glsl/optimizer.comp` and `glsl/bfgs.comp`).
 struct State;
@@ -346,35 +343,20 @@ pub struct Registration {
 /// `glsl/optimizer.comp` and `glsl/bfgs.comp` do.
 pub const CODE_BOUND: f64 = 3.0;
 
+// The latent gradient takes (m, k, first, end), the rig (views, stage).
+const _: () = assert!(shaders::LATENT_GRADIENT_COMP.takes::<[u32; 4]>());
+const _: () = assert!(shaders::RIG_COMP.takes::<[u32; 2]>());
+
 impl Registrar {
     /// Builds the registration pipelines and a differentiable renderer.
     pub fn new(ctx: &Context) -> Result<Self> {
-        let b = BindingKind::StorageBuffer;
         Ok(Self {
             renderer: DiffRenderer::new(ctx)?,
-            deform: ComputePipeline::new(ctx, "deform", &spirv(DEFORM)?, &[b; 4], 12)?,
-            latent_gradient: ComputePipeline::new(
-                ctx,
-                "latent gradient",
-                &spirv(LATENT_GRADIENT)?,
-                &[b; 3],
-                16,
-            )?,
-            optimizer: ComputePipeline::new(
-                ctx,
-                "optimizer",
-                &spirv(OPTIMIZER)?,
-                &[b; 5],
-                std::mem::size_of::<OptimizerConstants>() as u32,
-            )?,
-            bfgs: ComputePipeline::new(
-                ctx,
-                "bfgs",
-                &spirv(BFGS)?,
-                &[b; 5],
-                std::mem::size_of::<OptimizerConstants>() as u32,
-            )?,
-            rig: ComputePipeline::new(ctx, "rig", &spirv(RIG)?, &[b; 4], 8)?,
+            deform: ComputePipeline::new(ctx, &shaders::DEFORM_COMP)?,
+            latent_gradient: ComputePipeline::new(ctx, &shaders::LATENT_GRADIENT_COMP)?,
+            optimizer: ComputePipeline::new(ctx, &shaders::OPTIMIZER_COMP)?,
+            bfgs: ComputePipeline::new(ctx, &shaders::BFGS_COMP)?,
+            rig: ComputePipeline::new(ctx, &shaders::RIG_COMP)?,
         })
     }
 
