@@ -3,6 +3,7 @@
 // to stats_fixed[3 view + 0..2] (loss sum, intersection, union; int64 fixed point at
 // pc.stats_shift): writes the sums to stats[4 view + 0..2] and the loss to stats[4 view + 3].
 #include "fixed_point.glsl"
+#include "loss_codes.glsl"
 
 layout(local_size_x = 1) in;
 
@@ -18,8 +19,7 @@ void main() {
     uint view = gl_WorkGroupID.z;
     vec3 total;
     for (uint k = 0u; k < 3u; ++k) total[k] = from_fixed(stats_fixed[3u * view + k], pc.stats_shift);
-    float value = total.x;
-    if (pc.loss == 1u) value = total.z > 0.0 ? 1.0 - total.y / total.z : 0.0;
+    float value = loss_of(pc.loss, total);
     stats[4u * view] = total.x;
     stats[4u * view + 1u] = total.y;
     stats[4u * view + 2u] = total.z;

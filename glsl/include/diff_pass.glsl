@@ -51,14 +51,6 @@ const uint ATTRIBUTE_MAX = 6u;  // the same for attribute-gradient terms
 // interpolation and the crossings of its two forward pairs).
 const uint TERMS_PER_LISTED = 3u;
 
-// As `MAX_DEPTH_RESIDUAL` in src/diff/mod.rs (metres).
-const float MAX_DEPTH_RESIDUAL = 1000.0;
-
-// Losses (`loss::Loss`): mean squared error, soft IoU, signed-distance-weighted coverage.
-const uint LOSS_MSE = 0u;
-const uint LOSS_IOU = 1u;
-const uint LOSS_DISTANCE = 2u;
-
 // stats[4 view + k]: 0 = sum of per-pixel loss terms, 1 = intersection, 2 = union,
 // 3 = the view's loss. antialias.comp adds its terms to stats_fixed (int64 fixed point at
 // pc.stats_shift, chosen on the host from a bound on the sums, so the order of the adds
@@ -98,42 +90,6 @@ bool pair_matters(uint a, uint b) {
     return a != b && (interpolated || (a == 0u) != (b == 0u));
 }
 
-// Depth (pc.depth = 1) is the last channel: the interpolated camera-space z of the front
-// surface at the pixel centre, compared only where the pixel is covered and the
-// observation measured depth (observed > 0). It is not antialiased: the silhouette's
-// gradient comes from the mask (or shading) channel, which is; so depth is a smooth
-// function of the vertices and pose within each visibility piece, and `blended` removes
-// it from every antialiasing term and its backward.
-vec4 blended(vec4 v) {
-    if (pc.depth != 0u) v[pc.channels - 1u] = 0.0;
-    return v;
-}
-
-// The channels compared by mse (all but depth).
-uint mse_channels() { return max(pc.channels, 1u) - pc.depth; }
-
-// Whether pixel `index` compares depth; `residual` is rendered - observed there.
-bool depth_compared(uint index, vec4 a, out float residual) {
-    residual = 0.0;
-    if (pc.depth == 0u || ids[index] == 0u) return false;
-    uint ch = pc.channels - 1u;
-    float o = observed[index * pc.channels + ch];
-    // Residuals past 1 km are clamped (a bound the fixed-point loss sums rely on).
-    residual = clamp(a[ch] - o, -MAX_DEPTH_RESIDUAL, MAX_DEPTH_RESIDUAL);
-    return o > 0.0;
-}
-
-// The depth term of one pixel, Huber in units of pc.depth_scale (s): (r / s)^2 within s,
-// 2 |r| / s - 1 beyond (continuous with its derivative), times the weight / pixels.
-float depth_term(float r, float n) {
-    float u = abs(r) / pc.depth_scale;
-    return pc.depth_weight * (u <= 1.0 ? u * u : 2.0 * u - 1.0) / n;
-}
-
-float depth_term_gradient(float r, float n) {
-    return pc.depth_weight * 2.0 * clamp(r / pc.depth_scale, -1.0, 1.0) / (pc.depth_scale * n);
-}
-
 const ivec2 STEPS[4] = ivec2[4](ivec2(1, 0), ivec2(0, 1), ivec2(-1, 0), ivec2(0, -1));
 
 // The pair of pixel p with its neighbour p + STEPS[s] (inside the image, pair_matters),
@@ -156,68 +112,4 @@ Pair pair_weight_at(uint view, ivec2 p, int s) {
     return s < 2 ? decode_pair_weight(p, q, record, alpha) : decode_pair_weight(q, p, record, alpha);
 }
 
-vec4 load_antialiased(uint index) {
-    vec4 a = vec4(0.0);
-    for (uint ch = 0u; ch < image_channels(); ++ch) a[ch] = antialiased[index * image_channels() + ch];
-    return a;
-}
-
-vec4 load_observed(uint index) {
-    vec4 o = vec4(0.0);
-    for (uint ch = 0u; ch < image_channels(); ++ch) o[ch] = observed[index * image_channels() + ch];
-    return o;
-}
-
-// Loss terms of one pixel with antialiased value a: (sum term, intersection, union).
-// Only the background terms (a = 0) are summed over the whole image, once per
-// observation (classify.comp stage 1); every evaluation adds, for the pixels near the
-// object, what its value changes: loss_excess.
-vec3 loss_terms(uint index, vec4 a) {
-    vec4 o = load_observed(index);
-    float n = float(pc.width * pc.height);
-    if (pc.loss == LOSS_MSE) {
-        // Only called for the background (a = 0), where depth is not compared.
-        vec4 d = blended(a - o);
-        return vec3(dot(d, d) / (n * float(mse_channels())), 0.0, 0.0);
-    } else if (pc.loss == LOSS_IOU) {
-        return vec3(0.0, a.x * o.x, a.x + o.x - a.x * o.x);
-    }
-    return vec3(a.x * distance_field[index] / n, 0.0, 0.0);
-}
-
-// loss_terms(index, a) - loss_terms(index, 0), in forms without cancellation.
-vec3 loss_excess(uint index, vec4 a) {
-    vec4 o = load_observed(index);
-    float n = float(pc.width * pc.height);
-    if (pc.loss == LOSS_MSE) {
-        // (a - o)^2 - o^2 = a (a - 2 o)
-        float excess = dot(blended(a), blended(a - 2.0 * o)) / (n * float(mse_channels()));
-        float r;
-        if (depth_compared(index, a, r)) excess += depth_term(r, n);
-        return vec3(excess, 0.0, 0.0);
-    } else if (pc.loss == LOSS_IOU) {
-        return vec3(0.0, a.x * o.x, a.x * (1.0 - o.x));
-    }
-    return vec3(a.x * distance_field[index] / n, 0.0, 0.0);
-}
-
-// dL/dA at one pixel, given the antialiased value A there (after the forward pass).
-vec4 loss_gradient(uint index, uint view) {
-    float n = float(pc.width * pc.height);
-    vec4 a = load_antialiased(index);
-    vec4 o = load_observed(index);
-    vec4 g = vec4(0.0);
-    if (pc.loss == LOSS_MSE) {
-        g = 2.0 * blended(a - o) / (n * float(mse_channels()));
-        float r;
-        if (depth_compared(index, a, r)) g[pc.channels - 1u] = depth_term_gradient(r, n);
-    } else if (pc.loss == LOSS_IOU) {
-        float intersection = stats[4u * view + 1u];
-        float union_ = stats[4u * view + 2u];
-        if (union_ > 0.0) g.x = -(o.x * union_ - intersection * (1.0 - o.x)) / (union_ * union_);
-    } else {
-        g.x = distance_field[index] / n;
-    }
-    for (uint ch = image_channels(); ch < 4u; ++ch) g[ch] = 0.0;
-    return g;
-}
+#include "loss.glsl"

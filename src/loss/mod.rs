@@ -30,6 +30,7 @@ pub enum Loss {
 }
 
 impl Loss {
+    /// The loss's code in the shaders (`glsl/include/loss_codes.glsl`, checked by a test).
     pub(crate) fn code(self) -> u32 {
         match self {
             Loss::Mse => 0,
@@ -305,5 +306,24 @@ impl DistanceField {
         self.record(&mut rec, &masks, [&a, &b], &distance, (width, height, 1))?;
         ctx.submit_and_wait(rec)?;
         distance.read_range(0, mask.len())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The shaders' loss codes (glsl/include/loss_codes.glsl) are `Loss::code`'s.
+    #[test]
+    fn loss_codes_match_the_shaders() {
+        let glsl = include_str!("../../glsl/include/loss_codes.glsl");
+        for loss in [Loss::Mse, Loss::Iou, Loss::Distance] {
+            let line = format!(
+                "const uint LOSS_{} = {}u;",
+                loss.name().to_uppercase(),
+                loss.code()
+            );
+            assert!(glsl.contains(&line), "loss_codes.glsl lacks `{line}`");
+        }
     }
 }
