@@ -23,6 +23,7 @@
 //
 // State layout (floats): see `register::State`; this shader uses the quasi-Newton region.
 #include "views.glsl"
+#include "rotation.glsl"
 
 layout(local_size_x = 1) in;
 
@@ -74,15 +75,6 @@ void set_x(uint i, float v) {
 }
 float h(uint i, uint j) { return state[h_at() + i * n() + j]; }
 void set_h(uint i, uint j, float v) { state[h_at() + i * n() + j] = v; }
-
-mat3 skew(vec3 w) { return mat3(0.0, w.z, -w.y, -w.z, 0.0, w.x, w.y, -w.x, 0.0); }
-
-mat3 rodrigues(vec3 w) {
-    float angle = length(w);
-    if (angle < 1e-6) return mat3(1.0) + skew(w);
-    mat3 k = skew(w / angle);
-    return mat3(1.0) + sin(angle) * k + (1.0 - cos(angle)) * k * k;
-}
 
 // The left Jacobian of the rotation exponential: exp([w + d]x) ~ exp([J d]x) exp([w]x).
 mat3 left_jacobian(vec3 w) {

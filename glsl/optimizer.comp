@@ -7,6 +7,7 @@
 //
 // State layout (floats): see `register::State`.
 #include "views.glsl"
+#include "rotation.glsl"
 
 layout(local_size_x = 1) in;
 
@@ -43,14 +44,6 @@ uint second_moment_at() { return LATENT + 2u * pc.dims; }
 uint pose_velocity_at() { return LATENT + 3u * pc.dims; }
 uint losses_at() { return LATENT + 3u * pc.dims + 6u; }
 uint codes_at() { return losses_at() + pc.max_iterations; }  // [iteration][dims], after the step
-
-mat3 rodrigues(vec3 w) {
-    float angle = length(w);
-    if (angle < 1e-12) return mat3(1.0) + mat3(0.0, w.z, -w.y, -w.z, 0.0, w.x, w.y, -w.x, 0.0);
-    vec3 k = w / angle;
-    mat3 K = mat3(0.0, k.z, -k.y, -k.z, 0.0, k.x, k.y, -k.x, 0.0);
-    return mat3(1.0) + sin(angle) * K + (1.0 - cos(angle)) * K * K;
-}
 
 void main() {
     uint t = uint(state[ITERATION]);
