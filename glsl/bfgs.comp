@@ -21,7 +21,8 @@
 // box. (Clamping x - H g instead, as before, moved the free coordinates along a direction
 // computed as if the clamped ones moved too.)
 //
-// State layout (floats): see `register::State`; this shader uses the quasi-Newton region.
+// State layout (floats): pc's offsets (register::StateLayout); this shader uses the
+// quasi-Newton region.
 #include "views.glsl"
 #include "rotation.glsl"
 
@@ -46,35 +47,36 @@ layout(push_constant, std430) uniform Constants {
     uint max_iterations;
     uint pose_only;      // 1: the latent code stays where it is (pose alignment)
     float code_prior;    // weight of |z|^2 joining the loss (RegisterParams::code_prior)
+    // The state's layout (register::StateLayout): float offsets.
+    uint latent_at;
+    uint velocity_at;
+    uint second_moment_at;
+    uint pose_velocity_at;
+    uint losses_at;
+    uint codes_at;
+    uint accepted_loss_at;
+    uint halvings_at;
+    uint r0_at;
+    uint t0_at;
+    uint pose_x_at;
+    uint accepted_at;
+    uint accepted_grad_at;
+    uint h_at;
+    uint scratch_at;
+    uint state_len;
 } pc;
 
 const uint ITERATION = 0u;
-const uint LATENT = 8u;
 const uint MAX_N = 64u;
 uint n() { return pc.dims + 6u; }
-uint losses_at() { return LATENT + 3u * pc.dims + 6u; }
-uint codes_at() { return losses_at() + pc.max_iterations; }
-// Quasi-Newton region: accepted loss, halvings in a row, R0 (9), t0 (3), the current
-// pose part of x (6), the accepted x (n), its gradient (n), H (n x n).
-uint qn_at() { return codes_at() + pc.max_iterations * pc.dims; }
-uint accepted_loss_at() { return qn_at(); }
-uint halvings_at() { return qn_at() + 1u; }
-uint r0_at() { return qn_at() + 2u; }
-uint t0_at() { return qn_at() + 11u; }
-uint pose_x_at() { return qn_at() + 14u; }
-uint accepted_at() { return qn_at() + 20u; }
-uint accepted_grad_at() { return accepted_at() + n(); }
-uint h_at() { return accepted_grad_at() + n(); }
-// Scratch (n x n): the Cholesky factor of H_AA.
-uint scratch_at() { return h_at() + n() * n(); }
 const float CODE_BOUND = 3.0;
 
-float x_at(uint i) { return i < pc.dims ? state[LATENT + i] : state[pose_x_at() + i - pc.dims]; }
+float x_at(uint i) { return i < pc.dims ? state[pc.latent_at + i] : state[pc.pose_x_at + i - pc.dims]; }
 void set_x(uint i, float v) {
-    if (i < pc.dims) state[LATENT + i] = v; else state[pose_x_at() + i - pc.dims] = v;
+    if (i < pc.dims) state[pc.latent_at + i] = v; else state[pc.pose_x_at + i - pc.dims] = v;
 }
-float h(uint i, uint j) { return state[h_at() + i * n() + j]; }
-void set_h(uint i, uint j, float v) { state[h_at() + i * n() + j] = v; }
+float h(uint i, uint j) { return state[pc.h_at + i * n() + j]; }
+void set_h(uint i, uint j, float v) { state[pc.h_at + i * n() + j] = v; }
 
 // The left Jacobian of the rotation exponential: exp([w + d]x) ~ exp([J d]x) exp([w]x).
 mat3 left_jacobian(vec3 w) {
@@ -103,8 +105,8 @@ bool held(uint i, float gi) {
     return (x >= CODE_BOUND && gi < 0.0) || (x <= -CODE_BOUND && gi > 0.0);
 }
 
-float l(uint i, uint j) { return state[scratch_at() + i * n() + j]; }
-void set_l(uint i, uint j, float v) { state[scratch_at() + i * n() + j] = v; }
+float l(uint i, uint j) { return state[pc.scratch_at + i * n() + j]; }
+void set_l(uint i, uint j, float v) { state[pc.scratch_at + i * n() + j] = v; }
 
 // The step direction at the accepted point x with gradient g (see the top): -H g where
 // nothing is active, else the minimum of the quadratic model with the active coordinates
@@ -167,27 +169,27 @@ void main() {
     uint count = n();
     // The objective: the images' loss plus the code prior.
     float loss = stats[3];
-    for (uint i = 0u; i < pc.dims; ++i) loss += pc.code_prior * state[LATENT + i] * state[LATENT + i];
-    if (t < pc.max_iterations) state[losses_at() + t] = loss;
+    for (uint i = 0u; i < pc.dims; ++i) loss += pc.code_prior * state[pc.latent_at + i] * state[pc.latent_at + i];
+    if (t < pc.max_iterations) state[pc.losses_at + t] = loss;
 
     if (t == 0u) {
         mat4 m = views[0].object_to_camera;
         for (uint c = 0u; c < 3u; ++c) {
-            for (uint r = 0u; r < 3u; ++r) state[r0_at() + 3u * c + r] = m[c][r];
-            state[t0_at() + c] = m[3][c];
+            for (uint r = 0u; r < 3u; ++r) state[pc.r0_at + 3u * c + r] = m[c][r];
+            state[pc.t0_at + c] = m[3][c];
         }
-        for (uint i = 0u; i < 6u; ++i) state[pose_x_at() + i] = 0.0;
-        for (uint i = 0u; i < count * count; ++i) state[h_at() + i] = 0.0;
-        state[accepted_loss_at()] = 3.0e38;
+        for (uint i = 0u; i < 6u; ++i) state[pc.pose_x_at + i] = 0.0;
+        for (uint i = 0u; i < count * count; ++i) state[pc.h_at + i] = 0.0;
+        state[pc.accepted_loss_at] = 3.0e38;
     }
 
     // The gradient at x, in x's coordinates (the renderer's rotation gradient is for a
     // left increment of the current rotation).
     float g[MAX_N];
-    vec3 w = vec3(state[pose_x_at() + 3u], state[pose_x_at() + 4u], state[pose_x_at() + 5u]);
+    vec3 w = vec3(state[pc.pose_x_at + 3u], state[pc.pose_x_at + 4u], state[pc.pose_x_at + 5u]);
     vec3 gw = transpose(left_jacobian(w)) * vec3(grad_pose[3], grad_pose[4], grad_pose[5]);
     for (uint i = 0u; i < count; ++i) {
-        float v = i < pc.dims ? grad_latent[i] + 2.0 * pc.code_prior * state[LATENT + i]
+        float v = i < pc.dims ? grad_latent[i] + 2.0 * pc.code_prior * state[pc.latent_at + i]
             : (i < pc.dims + 3u ? grad_pose[i - pc.dims] : gw[i - pc.dims - 3u]);
         g[i] = moves(i) ? v : 0.0;
     }
@@ -203,10 +205,10 @@ void main() {
         }
     }
 
-    float accepted_loss = state[accepted_loss_at()];
+    float accepted_loss = state[pc.accepted_loss_at];
     float predicted = 0.0;
     for (uint i = 0u; i < count; ++i) {
-        predicted += state[accepted_grad_at() + i] * (x_at(i) - state[accepted_at() + i]);
+        predicted += state[pc.accepted_grad_at + i] * (x_at(i) - state[pc.accepted_at + i]);
     }
     bool finite = !isnan(loss) && !isinf(loss);
     for (uint i = 0u; i < count; ++i) finite = finite && !isnan(g[i]) && !isinf(g[i]);
@@ -221,8 +223,8 @@ void main() {
         float y[MAX_N];
         float sy = 0.0;
         for (uint i = 0u; i < count; ++i) {
-            s[i] = x_at(i) - state[accepted_at() + i];
-            y[i] = g[i] - state[accepted_grad_at() + i];
+            s[i] = x_at(i) - state[pc.accepted_at + i];
+            y[i] = g[i] - state[pc.accepted_grad_at + i];
             sy += s[i] * y[i];
         }
         if (t > 0u && sy > 1e-12) {
@@ -243,11 +245,11 @@ void main() {
             }
         }
         for (uint i = 0u; i < count; ++i) {
-            state[accepted_at() + i] = x_at(i);
-            state[accepted_grad_at() + i] = g[i];
+            state[pc.accepted_at + i] = x_at(i);
+            state[pc.accepted_grad_at + i] = g[i];
         }
-        state[accepted_loss_at()] = loss;
-        state[halvings_at()] = 0.0;
+        state[pc.accepted_loss_at] = loss;
+        state[pc.halvings_at] = 0.0;
 
         // Next point: the model's minimum on the face, each part's step at most twice
         // its first length.
@@ -263,27 +265,27 @@ void main() {
         for (uint i = 0u; i < count; ++i) set_x(i, x_at(i) + scale * d[i]);
     } else {
         for (uint i = 0u; i < count; ++i) {
-            float a = state[accepted_at() + i];
+            float a = state[pc.accepted_at + i];
             set_x(i, a + 0.5 * (x_at(i) - a));
         }
-        state[halvings_at()] += 1.0;
+        state[pc.halvings_at] += 1.0;
     }
     // The trial point projected onto the box (halving towards an accepted point stays in it).
-    for (uint i = 0u; i < pc.dims; ++i) state[LATENT + i] = clamp(state[LATENT + i], -CODE_BOUND, CODE_BOUND);
+    for (uint i = 0u; i < pc.dims; ++i) state[pc.latent_at + i] = clamp(state[pc.latent_at + i], -CODE_BOUND, CODE_BOUND);
     // The code after this iteration is the best found so far.
     for (uint j = 0u; j < pc.dims; ++j) {
-        if (t < pc.max_iterations) state[codes_at() + t * pc.dims + j] = state[accepted_at() + j];
+        if (t < pc.max_iterations) state[pc.codes_at + t * pc.dims + j] = state[pc.accepted_at + j];
     }
 
     if (pc.pose_every > 0u) {
         mat3 r0;
         for (uint c = 0u; c < 3u; ++c) {
-            for (uint r = 0u; r < 3u; ++r) r0[c][r] = state[r0_at() + 3u * c + r];
+            for (uint r = 0u; r < 3u; ++r) r0[c][r] = state[pc.r0_at + 3u * c + r];
         }
-        vec3 x_t = vec3(state[pose_x_at()], state[pose_x_at() + 1u], state[pose_x_at() + 2u]);
-        vec3 x_w = vec3(state[pose_x_at() + 3u], state[pose_x_at() + 4u], state[pose_x_at() + 5u]);
+        vec3 x_t = vec3(state[pc.pose_x_at], state[pc.pose_x_at + 1u], state[pc.pose_x_at + 2u]);
+        vec3 x_w = vec3(state[pc.pose_x_at + 3u], state[pc.pose_x_at + 4u], state[pc.pose_x_at + 5u]);
         mat3 r = rodrigues(x_w) * r0;
-        vec3 translation = vec3(state[t0_at()], state[t0_at() + 1u], state[t0_at() + 2u]) + x_t;
+        vec3 translation = vec3(state[pc.t0_at], state[pc.t0_at + 1u], state[pc.t0_at + 2u]) + x_t;
         views[0].object_to_camera = mat4(vec4(r[0], 0.0), vec4(r[1], 0.0), vec4(r[2], 0.0), vec4(translation, 1.0));
     }
     state[ITERATION] = float(t + 1u);

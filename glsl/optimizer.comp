@@ -5,7 +5,7 @@
 // views buffer (object_to_camera), updated as t -= step, R = exp(-[step]x) R (the
 // rotation increment is applied on the left, as the pose gradient is defined).
 //
-// State layout (floats): see `register::State`.
+// State layout (floats): pc's offsets (register::StateLayout).
 #include "views.glsl"
 #include "rotation.glsl"
 
@@ -30,6 +30,23 @@ layout(push_constant, std430) uniform Constants {
     uint max_iterations;
     uint pose_only;      // 1: the latent code stays where it is (pose alignment)
     float code_prior;    // weight of |z|^2 joining the loss (RegisterParams::code_prior)
+    // The state's layout (register::StateLayout): float offsets.
+    uint latent_at;
+    uint velocity_at;
+    uint second_moment_at;
+    uint pose_velocity_at;
+    uint losses_at;
+    uint codes_at;
+    uint accepted_loss_at;
+    uint halvings_at;
+    uint r0_at;
+    uint t0_at;
+    uint pose_x_at;
+    uint accepted_at;
+    uint accepted_grad_at;
+    uint h_at;
+    uint scratch_at;
+    uint state_len;
 } pc;
 
 // Offsets into `state`.
@@ -38,38 +55,32 @@ const uint LR_LATENT = 1u;
 const uint LR_TRANSLATION = 2u;
 const uint LR_ROTATION = 3u;
 const uint POSE_STEPS = 4u;
-const uint LATENT = 8u;
-uint velocity_at() { return LATENT + pc.dims; }
-uint second_moment_at() { return LATENT + 2u * pc.dims; }
-uint pose_velocity_at() { return LATENT + 3u * pc.dims; }
-uint losses_at() { return LATENT + 3u * pc.dims + 6u; }
-uint codes_at() { return losses_at() + pc.max_iterations; }  // [iteration][dims], after the step
 
 void main() {
     uint t = uint(state[ITERATION]);
     // The objective: the images' loss plus the code prior.
     float loss = stats[3];
-    for (uint j = 0u; j < pc.dims; ++j) loss += pc.code_prior * state[LATENT + j] * state[LATENT + j];
-    if (t < pc.max_iterations) state[losses_at() + t] = loss;
+    for (uint j = 0u; j < pc.dims; ++j) loss += pc.code_prior * state[pc.latent_at + j] * state[pc.latent_at + j];
+    if (t < pc.max_iterations) state[pc.losses_at + t] = loss;
     float decay = pow(pc.decay, float(t));
     bool shape = pc.pose_only == 0u;
 
     // Latent code.
     float norm = 0.0;
     for (uint j = 0u; j < pc.dims; ++j) {
-        float g = grad_latent[j] + 2.0 * pc.code_prior * state[LATENT + j];
+        float g = grad_latent[j] + 2.0 * pc.code_prior * state[pc.latent_at + j];
         norm += g * g;
     }
     norm = sqrt(norm);
     if (t == 0u) state[LR_LATENT] = norm > 0.0 ? pc.latent_step / norm : 0.0;
     for (uint j = 0u; j < pc.dims && shape; ++j) {
-        float g = grad_latent[j] + 2.0 * pc.code_prior * state[LATENT + j];
-        float v = pc.momentum * state[velocity_at() + j] + g;
-        state[velocity_at() + j] = v;
+        float g = grad_latent[j] + 2.0 * pc.code_prior * state[pc.latent_at + j];
+        float v = pc.momentum * state[pc.velocity_at + j] + g;
+        state[pc.velocity_at + j] = v;
         float step = state[LR_LATENT] * decay * v;
         if (pc.adam != 0u) {
-            float m2 = 0.999 * state[second_moment_at() + j] + 0.001 * g * g;
-            state[second_moment_at() + j] = m2;
+            float m2 = 0.999 * state[pc.second_moment_at + j] + 0.001 * g * g;
+            state[pc.second_moment_at + j] = m2;
             float m1 = v * (1.0 - pc.momentum);
             float bias1 = 1.0 - pow(pc.momentum, float(t + 1u));
             float bias2 = 1.0 - pow(0.999, float(t + 1u));
@@ -77,10 +88,10 @@ void main() {
         }
         // Projected step: codes stay within 3 standard deviations of the training set
         // (beyond it the space extrapolates and a stray gradient could run away).
-        state[LATENT + j] = clamp(state[LATENT + j] - step, -3.0, 3.0);
+        state[pc.latent_at + j] = clamp(state[pc.latent_at + j] - step, -3.0, 3.0);
     }
     for (uint j = 0u; j < pc.dims; ++j) {
-        if (t < pc.max_iterations) state[codes_at() + t * pc.dims + j] = state[LATENT + j];
+        if (t < pc.max_iterations) state[pc.codes_at + t * pc.dims + j] = state[pc.latent_at + j];
     }
 
     // Pose, once every pc.pose_every iterations (every iteration while aligned alone).
@@ -94,11 +105,11 @@ void main() {
             state[LR_ROTATION] = length(gr) > 0.0 ? pc.rotation_step / length(gr) : 0.0;
         }
         float pose_decay = pow(pc.decay, float(k));
-        vec3 vt = pc.momentum * vec3(state[pose_velocity_at()], state[pose_velocity_at() + 1u], state[pose_velocity_at() + 2u]) + gt;
-        vec3 vr = pc.momentum * vec3(state[pose_velocity_at() + 3u], state[pose_velocity_at() + 4u], state[pose_velocity_at() + 5u]) + gr;
+        vec3 vt = pc.momentum * vec3(state[pc.pose_velocity_at], state[pc.pose_velocity_at + 1u], state[pc.pose_velocity_at + 2u]) + gt;
+        vec3 vr = pc.momentum * vec3(state[pc.pose_velocity_at + 3u], state[pc.pose_velocity_at + 4u], state[pc.pose_velocity_at + 5u]) + gr;
         for (uint c = 0u; c < 3u; ++c) {
-            state[pose_velocity_at() + c] = vt[c];
-            state[pose_velocity_at() + 3u + c] = vr[c];
+            state[pc.pose_velocity_at + c] = vt[c];
+            state[pc.pose_velocity_at + 3u + c] = vr[c];
         }
         // Steps are bounded in metres and radians: a first gradient near zero (a start at
         // the optimum) sets a huge rate, and momentum must not then fling the object away.

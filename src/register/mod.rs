@@ -247,39 +247,72 @@ struct OptimizerConstants {
     max_iterations: u32,
     pose_only: u32,
     code_prior: f32,
+    layout: StateLayout,
 }
 const _: () = assert!(shaders::OPTIMIZER_COMP.takes::<OptimizerConstants>());
 const _: () = assert!(shaders::BFGS_COMP.takes::<OptimizerConstants>());
 
-/// Offsets of the optimiser state (mirrors `glsl/optimizer.comp` and `glsl/bfgs.comp`).
-struct State;
-impl State {
-    const LATENT: usize = 8;
-    fn losses(dims: usize) -> usize {
-        Self::LATENT + 3 * dims + 6
-    }
-    fn codes(dims: usize, iterations: usize) -> usize {
-        Self::losses(dims) + iterations
-    }
-    /// The quasi-Newton region: accepted loss, halvings, R0 (9), t0 (3), the pose part of
-    /// x (6), the accepted x (dims + 6), its gradient (dims + 6), H ((dims + 6)^2), scratch
-    /// for the active set's factor ((dims + 6)^2).
-    fn quasi_newton(dims: usize, iterations: usize) -> usize {
-        Self::codes(dims, iterations) + iterations * dims
-    }
-    fn r0(dims: usize, iterations: usize) -> usize {
-        Self::quasi_newton(dims, iterations) + 2
-    }
-    #[cfg(test)]
-    fn pose_x(dims: usize, iterations: usize) -> usize {
-        Self::quasi_newton(dims, iterations) + 14
-    }
-    fn accepted(dims: usize, iterations: usize) -> usize {
-        Self::quasi_newton(dims, iterations) + 20
-    }
-    fn len(dims: usize, iterations: usize) -> usize {
-        let n = dims + 6;
-        Self::accepted(dims, iterations) + 2 * n + 2 * n * n
+/// Where each part of the optimiser state lives (float offsets into the state buffer),
+/// decided here once and passed to `glsl/optimizer.comp` and `glsl/bfgs.comp` with their
+/// push constants. Slots 0-7 are the shaders' own scalars (iteration count, step lengths);
+/// the code, then each optimiser's vectors, the loss and code of every iteration, and the
+/// quasi-Newton region follow.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct StateLayout {
+    /// The latent code (dims).
+    latent: u32,
+    /// SGD momentum or Adam's first moment (dims), Adam's second moment (dims), the
+    /// pose's momentum (6).
+    velocity: u32,
+    second_moment: u32,
+    pose_velocity: u32,
+    /// The loss before each iteration (iterations), the code after it (iterations x dims).
+    losses: u32,
+    codes: u32,
+    /// Quasi-Newton: the accepted loss, halvings in a row, R0 (9), t0 (3), the pose part of
+    /// x (6), the accepted x (n = dims + 6), its gradient (n), H (n x n), scratch for the
+    /// active set's factor (n x n).
+    accepted_loss: u32,
+    halvings: u32,
+    r0: u32,
+    t0: u32,
+    pose_x: u32,
+    accepted: u32,
+    accepted_grad: u32,
+    h: u32,
+    scratch: u32,
+    /// Floats in all.
+    len: u32,
+}
+
+impl StateLayout {
+    fn new(dims: usize, iterations: usize) -> Self {
+        let (d, it, n) = (dims as u32, iterations as u32, dims as u32 + 6);
+        let latent = 8;
+        let losses = latent + 3 * d + 6;
+        let codes = losses + it;
+        let qn = codes + it * d;
+        let accepted = qn + 20;
+        let h = accepted + 2 * n;
+        Self {
+            latent,
+            velocity: latent + d,
+            second_moment: latent + 2 * d,
+            pose_velocity: latent + 3 * d,
+            losses,
+            codes,
+            accepted_loss: qn,
+            halvings: qn + 1,
+            r0: qn + 2,
+            t0: qn + 11,
+            pose_x: qn + 14,
+            accepted,
+            accepted_grad: accepted + n,
+            h,
+            scratch: h + n * n,
+            len: h + 2 * n * n,
+        }
     }
 }
 
@@ -299,6 +332,7 @@ impl OptimizerConstants {
             max_iterations: params.iterations as u32,
             pose_only: pose_only as u32,
             code_prior: params.code_prior as f32,
+            layout: StateLayout::new(dims, params.iterations),
         }
     }
 }
@@ -566,7 +600,7 @@ impl Registrar {
             &DeformConstants {
                 vertex_count: m as u32,
                 dims: k as u32,
-                latent_at: State::LATENT as u32,
+                latent_at: StateLayout::new(k, 0).latent,
             },
             Groups::Count((m as u32).div_ceil(64), 1, 1),
         );
@@ -836,7 +870,7 @@ impl<'a> Task<'a> {
                 })
             })
             .collect();
-        let state_len = State::len(k, params.iterations);
+        let state_len = StateLayout::new(k, params.iterations).len as usize;
         Ok(Self {
             space,
             scene,
@@ -871,7 +905,7 @@ impl<'a> Task<'a> {
         }
         let losses = self
             .state
-            .read_range::<f32>(State::losses(self.k) as u64 * 4, self.done)?;
+            .read_range::<f32>(StateLayout::new(self.k, 0).losses as u64 * 4, self.done)?;
         let best = losses.iter().copied().fold(f32::INFINITY, f32::min) as f64;
         let plateau = best.is_finite()
             && self.best.is_finite()
@@ -896,21 +930,25 @@ impl<'a> Task<'a> {
 
     fn result(&self, params: &RegisterParams) -> Result<Registration> {
         let k = self.k;
-        let values = self
-            .state
-            .read_range::<f32>(0, State::len(k, params.iterations))?;
+        let layout = StateLayout::new(k, params.iterations);
+        let at = |offset: u32| offset as usize;
+        let values = self.state.read_range::<f32>(0, at(layout.len))?;
         let (coordinates, pose) = match params.optimizer {
             Optimizer::Sgd | Optimizer::Adam => (
-                &values[State::LATENT..State::LATENT + k],
+                &values[at(layout.latent)..at(layout.latent) + k],
                 read_pose(self.scene.views())?,
             ),
             // The last accepted point (the current one is a step not yet evaluated).
             Optimizer::Bfgs => {
-                let at = State::accepted(k, params.iterations);
-                let x: Vec<f64> = values[at..at + k + 6].iter().map(|&v| v as f64).collect();
-                let r0 = &values[State::r0(k, params.iterations)..];
-                let initial = DMat3::from_cols_array(&std::array::from_fn(|i| r0[i] as f64));
-                let t0 = DVec3::from_array(std::array::from_fn(|i| r0[9 + i] as f64));
+                let accepted = at(layout.accepted);
+                let x: Vec<f64> = values[accepted..accepted + k + 6]
+                    .iter()
+                    .map(|&v| v as f64)
+                    .collect();
+                let (r0, t0) = (at(layout.r0), at(layout.t0));
+                let initial =
+                    DMat3::from_cols_array(&std::array::from_fn(|i| values[r0 + i] as f64));
+                let t0 = DVec3::from_array(std::array::from_fn(|i| values[t0 + i] as f64));
                 let pose = if params.pose_every > 0 {
                     let w = DVec3::new(x[k + 3], x[k + 4], x[k + 5]);
                     let rotation = DMat3::from_quat(glam::DQuat::from_scaled_axis(w)) * initial;
@@ -921,7 +959,7 @@ impl<'a> Task<'a> {
                 } else {
                     read_pose(self.scene.views())?
                 };
-                (&values[at..at + k], pose)
+                (&values[accepted..accepted + k], pose)
             }
         };
         let code = self.code(coordinates);
@@ -929,13 +967,13 @@ impl<'a> Task<'a> {
             .iter()
             .filter(|z| z.abs() as f64 >= CODE_BOUND)
             .count();
-        let losses = values[State::losses(k)..State::losses(k) + self.done]
+        let losses = values[at(layout.losses)..at(layout.losses) + self.done]
             .iter()
             .map(|&l| l as f64)
             .collect();
-        let at = State::codes(k, params.iterations);
+        let codes_at = at(layout.codes);
         let codes = (0..self.done)
-            .map(|t| self.code(&values[at + t * k..at + (t + 1) * k]))
+            .map(|t| self.code(&values[codes_at + t * k..codes_at + (t + 1) * k]))
             .collect();
         Ok(Registration {
             vertices: self.space.vertices(&code)?,
@@ -1324,8 +1362,9 @@ mod tests {
             }],
         )
         .unwrap();
+        let layout = StateLayout::new(k, iterations);
         let mut state =
-            Buffer::from_slice(&ctx, "state", &vec![0f32; State::len(k, iterations)]).unwrap();
+            Buffer::from_slice(&ctx, "state", &vec![0f32; layout.len as usize]).unwrap();
         state.write(0, &[0f32]).unwrap();
         let mut grad_latent = Buffer::from_slice(&ctx, "grad latent", &vec![0f32; k]).unwrap();
         let mut grad_pose = Buffer::from_slice(&ctx, "grad pose", &[0f32; 6]).unwrap();
@@ -1333,9 +1372,9 @@ mod tests {
         let mut reference = BfgsReference::new(k, [4.0, 0.01, 0.05]);
         let read_x = |state: &Buffer| -> Vec<f64> {
             let v = state.read::<f32>().unwrap();
-            let pose = State::pose_x(k, iterations);
+            let (latent, pose) = (layout.latent as usize, layout.pose_x as usize);
             (0..k)
-                .map(|i| v[State::LATENT + i] as f64)
+                .map(|i| v[latent + i] as f64)
                 .chain((0..6).map(|i| v[pose + i] as f64))
                 .collect()
         };
