@@ -3,6 +3,7 @@
 mod bench;
 mod bench_register;
 mod check_cmd;
+mod choices;
 mod cpd_cmd;
 mod eval_cmd;
 mod grad;
@@ -24,6 +25,8 @@ use vkdr::gpu::Context;
 use vkdr::io::{write_npy, write_png};
 use vkdr::raster::{Outputs, Rasterizer, View};
 use vkdr::{Camera, Mesh, Pose};
+
+use choices::{LossChoice, OptimizerChoice};
 
 #[derive(Parser)]
 #[command(
@@ -60,8 +63,8 @@ enum Command {
         #[arg(long, default_value_t = 1_000_000)]
         max_vertices: usize,
         /// Loss of the timed iteration.
-        #[arg(long, default_value = "mse")]
-        loss: String,
+        #[arg(long, value_enum, default_value_t = LossChoice::Mse)]
+        loss: LossChoice,
         /// Output directory for bench.csv, bench.json and bench.png.
         #[arg(long)]
         out: PathBuf,
@@ -241,15 +244,15 @@ struct EvalArgs {
     /// Iterations with the pose known.
     #[arg(long, default_value_t = vkdr_app::eval::EvalSettings::default().known_pose.iterations)]
     known_iterations: usize,
-    /// Loss of both conditions: mse | iou | distance (default: each condition's own).
-    #[arg(long)]
-    loss: Option<String>,
+    /// Loss of both conditions (default: each condition's own).
+    #[arg(long, value_enum)]
+    loss: Option<LossChoice>,
     /// Length of the first latent step, in training standard deviations.
     #[arg(long, allow_negative_numbers = true, default_value_t = 0.5)]
     latent_step: f64,
-    /// Optimiser of both conditions: sgd | adam | bfgs (default: each condition's own).
-    #[arg(long)]
-    optimizer: Option<String>,
+    /// Optimiser of both conditions (default: each condition's own).
+    #[arg(long, value_enum)]
+    optimizer: Option<OptimizerChoice>,
     /// First pose steps with pose noise: translation (m) and rotation (rad).
     #[arg(long, allow_negative_numbers = true, default_value_t = vkdr_app::eval::EvalSettings::default().pose_noise.translation_step)]
     translation_step: f64,
@@ -365,9 +368,9 @@ struct GradArgs {
     observed: PathBuf,
     #[command(flatten)]
     view: ViewArgs,
-    /// mse | iou | distance
-    #[arg(long, default_value = "mse")]
-    loss: String,
+    /// The loss.
+    #[arg(long, value_enum, default_value_t = LossChoice::Mse)]
+    loss: LossChoice,
     /// Output directory.
     #[arg(long)]
     out: PathBuf,
@@ -393,7 +396,7 @@ fn main() {
             max_vertices,
             loss,
             out,
-        } => bench(&size, repeats, max_vertices, &loss, &out),
+        } => bench(&size, repeats, max_vertices, loss.into(), &out),
         Command::BenchRegister(args) => Context::new()
             .map_err(anyhow::Error::from)
             .and_then(|ctx| bench_register::run(&ctx, &args)),
@@ -565,7 +568,7 @@ fn parse_view(intrinsics: &str, size: &str, pose: &str, near: f64) -> Result<Vie
 fn grad(args: &GradArgs) -> Result<()> {
     let mesh = Mesh::load_obj(&args.mesh)?;
     let view = args.view.view()?;
-    let loss: vkdr::loss::Loss = args.loss.parse()?;
+    let loss: vkdr::loss::Loss = args.loss.into();
     let ctx = Context::new()?;
     let result = grad::run(&ctx, &mesh, view, &args.observed, loss, &args.out)?;
     println!("loss ({}): {:e}", loss.name(), result.loss[0]);
@@ -581,7 +584,13 @@ fn grad(args: &GradArgs) -> Result<()> {
     Ok(())
 }
 
-fn bench(size: &str, repeats: usize, max_vertices: usize, loss: &str, out: &Path) -> Result<()> {
+fn bench(
+    size: &str,
+    repeats: usize,
+    max_vertices: usize,
+    loss: vkdr::loss::Loss,
+    out: &Path,
+) -> Result<()> {
     let size = match size.parse::<u32>() {
         Ok(s) => (s, s),
         Err(_) => parse_size(size)?,
@@ -593,7 +602,7 @@ fn bench(size: &str, repeats: usize, max_vertices: usize, loss: &str, out: &Path
         size,
         repeats: repeats.max(1),
         max_vertices,
-        loss: loss.parse()?,
+        loss,
     };
     let rows = bench::run(&ctx, &args)?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
@@ -757,9 +766,8 @@ fn eval_command(args: &EvalArgs) -> Result<()> {
     settings.views = args.views;
     settings.fix_z = args.fix_z;
     settings.pose_noise.code_prior = args.code_prior;
-    let loss: Option<vkdr::loss::Loss> = args.loss.as_deref().map(str::parse).transpose()?;
-    let optimizer: Option<vkdr::register::Optimizer> =
-        args.optimizer.as_deref().map(str::parse).transpose()?;
+    let loss: Option<vkdr::loss::Loss> = args.loss.map(Into::into);
+    let optimizer: Option<vkdr::register::Optimizer> = args.optimizer.map(Into::into);
     for params in [&mut settings.known_pose, &mut settings.pose_noise] {
         params.latent_step = args.latent_step;
         params.optimizer = optimizer.unwrap_or(params.optimizer);

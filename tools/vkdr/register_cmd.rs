@@ -13,6 +13,7 @@ use vkdr::shape::ShapeSpace;
 use vkdr::{Camera, Mesh, Pose};
 use vkdr_app::eval::{self, EvalSettings};
 
+use crate::choices::{LossChoice, OptimizerChoice};
 use crate::{eval_cmd, parse_view, DepthLossArgs, ShadingArgs, ViewArgs};
 
 #[derive(clap::Args)]
@@ -60,12 +61,12 @@ pub struct Args {
     /// the pose fixed, 60 with --optimize-pose).
     #[arg(long)]
     iterations: Option<usize>,
-    /// mse | iou | distance
-    #[arg(long, default_value = "mse")]
-    loss: String,
-    /// sgd | adam | bfgs (default: that of `vkdr eval`'s condition)
-    #[arg(long)]
-    optimizer: Option<String>,
+    /// The loss.
+    #[arg(long, value_enum, default_value_t = LossChoice::Mse)]
+    loss: LossChoice,
+    /// The optimiser (default: that of `vkdr eval`'s condition).
+    #[arg(long, value_enum)]
+    optimizer: Option<OptimizerChoice>,
     /// Weight of a Gaussian prior on the code (0: none); with --optimize-pose it keeps the
     /// shape from drifting against the pose where the images cannot tell them apart.
     #[arg(long, allow_negative_numbers = true, default_value_t = 0.0)]
@@ -291,11 +292,11 @@ pub fn run(args: &Args) -> Result<()> {
     } else {
         settings.known_pose
     };
-    let optimizer = args.optimizer.as_deref().map(str::parse).transpose()?;
+    let optimizer: Option<vkdr::register::Optimizer> = args.optimizer.map(Into::into);
     let observes_z = observed.depth.is_some() || !others.is_empty();
     let params = RegisterParams {
         iterations: args.iterations.unwrap_or(base.iterations),
-        loss: args.loss.parse()?,
+        loss: args.loss.into(),
         optimizer: optimizer.unwrap_or(base.optimizer),
         shading: args.shading.shading()?,
         depth: observed.depth.is_some().then_some(depth_loss),

@@ -214,7 +214,7 @@ fn bad_input_exits_non_zero_naming_the_problem_and_keeps_existing_files() {
                 POSE,
                 &["--loss", "l7", "--out", "OUT"],
             ]),
-            "unknown loss 'l7'",
+            "invalid value 'l7' for '--loss <LOSS>'\n  [possible values: mse, iou, distance]",
         ),
         // cpd.
         case(
@@ -401,7 +401,7 @@ fn bad_input_exits_non_zero_naming_the_problem_and_keeps_existing_files() {
         case(&register(&["--iterations", "1000000"]), "at most 100000"),
         case(
             &register(&["--optimizer", "newton"]),
-            "unknown optimizer 'newton'",
+            "invalid value 'newton' for '--optimizer <OPTIMIZER>'\n  [possible values: sgd, adam, bfgs]",
         ),
         // Device limits and the environment.
         case(
