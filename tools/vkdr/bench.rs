@@ -3,21 +3,82 @@
 //! 1e6 vertices. GPU times come from timestamps (median over repeats); wall time is a
 //! whole submission with its wait.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context as _, Result};
 
+use vkdr::camera::parse_size;
 use vkdr::diff::DiffRenderer;
-
-use crate::grad::mask_scene;
 use vkdr::gpu::{Context, Recorder, Timestamps};
 use vkdr::loss::Loss;
 use vkdr::raster::{MeshBuffers, ShadedTarget, View};
 use vkdr::{Camera, Mesh, Pose};
 use vkdr_app::plot::{Plot, PALETTE};
 
-pub struct BenchArgs {
+use crate::choices::LossChoice;
+use crate::grad::mask_scene;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Image size WxH, or one number for a square image.
+    #[arg(long, default_value = "1024")]
+    size: String,
+    /// Timed repeats per mesh (after one warm-up); medians are reported.
+    #[arg(long, default_value_t = 10)]
+    repeats: usize,
+    /// Skip meshes with more vertices than this.
+    #[arg(long, default_value_t = 1_000_000)]
+    max_vertices: usize,
+    /// Loss of the timed iteration.
+    #[arg(long, value_enum, default_value_t = LossChoice::Mse)]
+    loss: LossChoice,
+    /// Output directory for bench.csv, bench.json and bench.png.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+pub fn run(args: &Args) -> Result<()> {
+    let size = match args.size.parse::<u32>() {
+        Ok(s) => (s, s),
+        Err(_) => parse_size(&args.size)?,
+    };
+    let ctx = Context::new()?;
+    let device = format!("{} ({})", ctx.info().name, ctx.info().driver_info);
+    println!("device: {device}");
+    let settings = Settings {
+        size,
+        repeats: args.repeats.max(1),
+        max_vertices: args.max_vertices,
+        loss: args.loss.into(),
+    };
+    let rows = measure(&ctx, &settings)?;
+    let out = &args.out;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    write(out, &rows, size, &device)?;
+    println!("vertices,faces,forward_ms,backward_ms,plain_ms,ratio,dtz_error,stretch_error");
+    for r in &rows {
+        println!(
+            "{},{},{:.3},{:.3},{:.3},{:.2},{:.4},{:.4}",
+            r.vertices,
+            r.faces,
+            r.forward_ms,
+            r.backward_ms,
+            r.plain_ms,
+            r.ratio,
+            r.dtz_error,
+            r.stretch_error
+        );
+    }
+    println!(
+        "wrote {0}/bench.csv, {0}/bench.json and {0}/bench.png",
+        out.display()
+    );
+    Ok(())
+}
+
+/// What one run measures.
+struct Settings {
     /// Width and height.
     pub size: (u32, u32),
     pub repeats: usize,
@@ -94,11 +155,11 @@ pub fn median(mut values: Vec<f64>) -> f64 {
     }
 }
 
-pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
-    let (width, height) = args.size;
+fn measure(ctx: &Context, settings: &Settings) -> Result<Vec<Row>> {
+    let (width, height) = settings.size;
     let counts: Vec<usize> = [1_000, 10_000, 100_000, 1_000_000]
         .into_iter()
-        .filter(|&v| v <= args.max_vertices)
+        .filter(|&v| v <= settings.max_vertices)
         .collect();
     // Before the observed mask is allocated at that size.
     let largest = counts.last().copied().unwrap_or(0) as u64;
@@ -130,9 +191,9 @@ pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
             counts.len(),
             mesh.vertex_count(),
             mesh.triangle_count(),
-            args.repeats
+            settings.repeats
         );
-        let mut scene = mask_scene(ctx, &mesh, view, &mask, args.loss)?;
+        let mut scene = mask_scene(ctx, &mesh, view, &mask, settings.loss)?;
         let stamps = Timestamps::new(ctx, 3)?;
         let mut rec = Recorder::new(ctx)?;
         scene.record_prepare(&renderer, &mut rec)?;
@@ -155,7 +216,7 @@ pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
 
         let (mut forward, mut backward, mut plain_ms, mut wall, mut plain_wall, mut ratio) =
             (vec![], vec![], vec![], vec![], vec![], vec![]);
-        for repeat in 0..=args.repeats {
+        for repeat in 0..=settings.repeats {
             let started = Instant::now();
             ctx.replay(&iteration)?;
             let elapsed = started.elapsed().as_secs_f64() * 1e3;
@@ -176,7 +237,7 @@ pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
         }
         // A profile: each pass of the same evaluation submitted alone.
         let passes: Vec<(&'static str, f64)> = scene
-            .profile(ctx, &renderer, args.repeats)?
+            .profile(ctx, &renderer, settings.repeats)?
             .into_iter()
             .map(|(name, times)| (name, median(times)))
             .collect();
@@ -197,7 +258,7 @@ pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
         let moved = |dz: f64| {
             let mut v = view;
             v.pose.translation.z += dz;
-            loss_of(ctx, &renderer, &mesh, v, &mask, args.loss)
+            loss_of(ctx, &renderer, &mesh, v, &mask, settings.loss)
         };
         let fd_tz = (moved(h)? - moved(-h)?) / (2.0 * h);
         let dtz_error = relative_error(result.pose_gradient[0][2] as f64, fd_tz);
@@ -209,7 +270,7 @@ pub fn run(ctx: &Context, args: &BenchArgs) -> Result<Vec<Row>> {
                 &stretched(&mesh, e)?,
                 view,
                 &mask,
-                args.loss,
+                settings.loss,
             )
         };
         let fd_stretch = (stretch(e)? - stretch(-e)?) / (2.0 * e as f64);

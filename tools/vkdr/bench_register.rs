@@ -64,7 +64,8 @@ pub struct Args {
     pub out: PathBuf,
 }
 
-pub fn run(ctx: &Context, args: &Args) -> Result<()> {
+pub fn run(args: &Args) -> Result<()> {
+    let ctx = &Context::new()?;
     let started = Instant::now();
     let (width, height) = parse_size(&args.size)?;
     std::fs::create_dir_all(&args.out)

@@ -8,6 +8,14 @@ use anyhow::{bail, Context as _, Result};
 use vkdr::io::write_png;
 use vkdr_app::check::{self, Category};
 
+#[derive(clap::Args)]
+pub struct Args {
+    dataset: PathBuf,
+    /// Where report.txt and contact_<category>.png go.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
 /// The category folders under `dataset` (or `dataset` itself when it is one): folders
 /// with a canonical.obj, a train/ or a test/.
 fn categories(dataset: &Path) -> Result<Vec<PathBuf>> {
@@ -34,7 +42,8 @@ fn categories(dataset: &Path) -> Result<Vec<PathBuf>> {
 
 /// Checks every category, prints the report, writes `report.txt` and
 /// `contact_<category>.png` into `out`; an error when any category is unusable.
-pub fn run(dataset: &Path, out: &Path) -> Result<()> {
+pub fn run(args: &Args) -> Result<()> {
+    let (dataset, out) = (args.dataset.as_path(), args.out.as_path());
     let dirs = categories(dataset)?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let mut text = String::new();

@@ -1,6 +1,6 @@
 //! `vkdr cpd`: non-rigid CPD between two point sets (OBJ vertices or N x 3 .npy).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context as _, Result};
 use glam::DVec3;
@@ -10,7 +10,35 @@ use vkdr::cpd::{self, CpdParams, CpdPipelines, CpdResult};
 use vkdr::gpu::Context;
 use vkdr::io::write_npy;
 
-pub fn run(source: &Path, target: &Path, params: &CpdParams, out: &Path) -> Result<CpdResult> {
+use crate::args::CpdArgs;
+
+#[derive(clap::Args)]
+pub struct Args {
+    source: PathBuf,
+    target: PathBuf,
+    #[command(flatten)]
+    cpd: CpdArgs,
+    /// Output directory for deformed.npy, W.npy and log.json.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+pub fn run(args: &Args) -> Result<()> {
+    let params = args.cpd.params()?;
+    let r = register(&args.source, &args.target, &params, &args.out)?;
+    println!(
+        "{} iterations ({}) in {:.3} s; final sigma^2 {:.3e}; wrote {4}/deformed.npy, {4}/W.npy, {4}/log.json",
+        r.iterations,
+        r.stop.describe(),
+        r.seconds,
+        r.sigma2.last().copied().unwrap_or(f64::NAN),
+        args.out.display()
+    );
+    Ok(())
+}
+
+/// Registers `source` onto `target` and writes deformed.npy, W.npy and log.json into `out`.
+fn register(source: &Path, target: &Path, params: &CpdParams, out: &Path) -> Result<CpdResult> {
     let y = vkdr::io::load_points(source)?;
     let x = vkdr::io::load_points(target)?;
     let ctx = Context::new()?;

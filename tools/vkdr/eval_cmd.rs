@@ -1,4 +1,5 @@
-//! `vkdr register`, `vkdr eval` and the pictures and reports they write.
+//! `vkdr eval`: the paper's Table 1 on a dataset; and the registration with pictures that
+//! `vkdr register` and `vkdr demo` share, and the reports they write.
 
 use std::path::{Path, PathBuf};
 
@@ -15,7 +16,192 @@ use vkdr::Mesh;
 use vkdr_app::eval::{self, EvalSettings, Row, Trial};
 use vkdr_app::plot::{Plot, PALETTE};
 
+use crate::args::{DepthLossArgs, ShadingArgs};
+use crate::choices::{LossChoice, OptimizerChoice};
 use crate::shape_cmd::obj_files;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// A dataset in the layout of `vkdr gen-dataset`.
+    #[arg(long)]
+    dataset: PathBuf,
+    #[arg(long, default_value_t = 10)]
+    trials: usize,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Only these categories (comma-separated).
+    #[arg(long)]
+    categories: Option<String>,
+    /// Dimensions of each category's shape space (at most its training instances less one).
+    #[arg(long, default_value_t = vkdr_app::eval::EvalSettings::default().dims)]
+    dims: usize,
+    /// Iterations with pose noise, after the alignment's.
+    #[arg(long, default_value_t = vkdr_app::eval::EvalSettings::default().pose_noise.iterations)]
+    noise_iterations: usize,
+    /// Iterations with the pose known.
+    #[arg(long, default_value_t = vkdr_app::eval::EvalSettings::default().known_pose.iterations)]
+    known_iterations: usize,
+    /// Loss of both conditions (default: each condition's own).
+    #[arg(long, value_enum)]
+    loss: Option<LossChoice>,
+    /// Length of the first latent step, in training standard deviations.
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.5)]
+    latent_step: f64,
+    /// Optimiser of both conditions (default: each condition's own).
+    #[arg(long, value_enum)]
+    optimizer: Option<OptimizerChoice>,
+    /// First pose steps with pose noise: translation (m) and rotation (rad).
+    #[arg(long, allow_negative_numbers = true, default_value_t = vkdr_app::eval::EvalSettings::default().pose_noise.translation_step)]
+    translation_step: f64,
+    #[arg(long, allow_negative_numbers = true, default_value_t = vkdr_app::eval::EvalSettings::default().pose_noise.rotation_step)]
+    rotation_step: f64,
+    /// With pose noise: update the pose once every this many iterations...
+    #[arg(long, default_value_t = vkdr_app::eval::EvalSettings::default().pose_noise.pose_every)]
+    pose_every: usize,
+    /// With pose noise: iterations that first align the pose alone (distance loss).
+    #[arg(long, default_value_t = vkdr_app::eval::EvalSettings::default().pose_noise.align)]
+    align: usize,
+    /// Also optimise pose and shape from the true pose (a column of its own): where the
+    /// silhouette's optimum lies, apart from the start.
+    #[arg(long)]
+    from_truth: bool,
+    #[command(flatten)]
+    shading: ShadingArgs,
+    /// Observe the test instance's rendered depth too (then z is optimised with pose noise).
+    #[arg(long)]
+    depth: bool,
+    /// Standard deviation of Gaussian noise added to every measured depth, metres.
+    #[arg(
+        long,
+        allow_negative_numbers = true,
+        requires = "depth",
+        default_value_t = 0.0
+    )]
+    depth_noise: f64,
+    #[command(flatten)]
+    depth_loss: DepthLossArgs,
+    /// Cameras per trial, 1 to 6: the others at seeded azimuths at least 60 degrees from
+    /// every other, their relative poses known, one code and object pose for all.
+    #[arg(long, default_value_t = 1)]
+    views: usize,
+    /// Keep the distance (z) at its true value with pose noise even with --depth or --views
+    /// (as with one mask).
+    #[arg(long)]
+    fix_z: bool,
+    /// With pose noise: weight of a Gaussian prior on the code (RegisterParams::code_prior;
+    /// with the pose known the images leave no shift of the shape open). 0: none.
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.0)]
+    code_prior: f64,
+    /// Run even where `check-dataset` finds the set unusable (millimetres, no meshes, ...).
+    #[arg(long)]
+    skip_checks: bool,
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// `vkdr eval`: the default settings with the flags' changes.
+pub fn run(args: &Args) -> Result<()> {
+    if args.dims == 0 {
+        bail!("--dims must be at least 1");
+    }
+    if !(2..=1000).contains(&args.trials) {
+        bail!(
+            "--trials must be 2 to 1000 (a spread needs two), not {}",
+            args.trials
+        );
+    }
+    let mut settings = vkdr_app::eval::EvalSettings {
+        trials: args.trials,
+        seed: args.seed,
+        dims: args.dims,
+        ..Default::default()
+    };
+    settings.pose_noise.iterations = args.noise_iterations;
+    settings.known_pose.iterations = args.known_iterations;
+    settings.pose_noise.translation_step = args.translation_step;
+    settings.pose_noise.rotation_step = args.rotation_step;
+    settings.pose_noise.pose_every = args.pose_every;
+    settings.pose_noise.align = args.align;
+    settings.from_truth = args.from_truth;
+    settings.shading = args.shading.shading()?;
+    if args.depth {
+        settings.depth = Some(args.depth_loss.loss()?);
+    }
+    if !(args.depth_noise.is_finite() && (0.0..=1.0).contains(&args.depth_noise)) {
+        bail!(
+            "--depth-noise must be a standard deviation in metres, 0 to 1, not {}",
+            args.depth_noise
+        );
+    }
+    settings.depth_noise = args.depth_noise;
+    if !(1..=6).contains(&args.views) {
+        bail!(
+            "--views must be 1 to 6 (views at least 60 degrees apart), not {}",
+            args.views
+        );
+    }
+    settings.views = args.views;
+    settings.fix_z = args.fix_z;
+    settings.pose_noise.code_prior = args.code_prior;
+    let loss: Option<vkdr::loss::Loss> = args.loss.map(Into::into);
+    let optimizer: Option<vkdr::register::Optimizer> = args.optimizer.map(Into::into);
+    for params in [&mut settings.known_pose, &mut settings.pose_noise] {
+        params.latent_step = args.latent_step;
+        params.optimizer = optimizer.unwrap_or(params.optimizer);
+        params.loss = loss.unwrap_or(params.loss);
+        params.validate()?;
+    }
+    evaluate(
+        &args.dataset,
+        settings,
+        args.categories.as_deref(),
+        args.skip_checks,
+        &args.out,
+    )
+}
+
+/// Evaluates the dataset with `settings`, prints the table and writes the reports into
+/// `out`; an error when any category failed.
+fn evaluate(
+    dataset: &Path,
+    settings: vkdr_app::eval::EvalSettings,
+    categories: Option<&str>,
+    skip_checks: bool,
+    out: &Path,
+) -> Result<()> {
+    let ctx = Context::new()?;
+    let device = format!("{} ({})", ctx.info().name, ctx.info().driver_info);
+    let only: Option<Vec<String>> =
+        categories.map(|c| c.split(',').map(|s| s.trim().to_string()).collect());
+    let (rows, failures) = eval(
+        &ctx,
+        dataset,
+        &settings,
+        only.as_deref(),
+        skip_checks,
+        |rows| write_reports(out, rows, &settings, &device),
+    )?;
+    if !rows.is_empty() {
+        print!("{}", std::fs::read_to_string(out.join("table.md"))?);
+        println!(
+            "wrote {0}/table.md, table.csv, table.json, trials.csv, speed_vs_error.png",
+            out.display()
+        );
+    }
+    if !failures.is_empty() {
+        bail!(
+            "{} of the categories failed{}:\n  {}",
+            failures.len(),
+            if rows.is_empty() {
+                String::new()
+            } else {
+                format!(" (the others' tables are in {})", out.display())
+            },
+            failures.join("\n  ")
+        );
+    }
+    Ok(())
+}
 
 /// Observed mask in blue, rendered silhouette in red (overlap magenta).
 pub fn overlay(observed: &[f32], rendered: &[f32], width: u32, height: u32) -> RgbImage {

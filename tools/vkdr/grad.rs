@@ -1,7 +1,7 @@
 //! `vkdr grad`: loss and exact gradients of one render against an observed mask, and a
 //! picture of them.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context as _, Result};
 use glam::DVec3;
@@ -13,6 +13,45 @@ use vkdr::io::{write_npy, write_png};
 use vkdr::loss::{load_mask, Loss};
 use vkdr::raster::View;
 use vkdr::Mesh;
+
+use crate::args::ViewArgs;
+use crate::choices::LossChoice;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// OBJ file (vertex_grad.npy follows its vertex order).
+    mesh: PathBuf,
+    /// Observed mask PNG (nonzero = object), of exactly --size.
+    #[arg(long)]
+    observed: PathBuf,
+    #[command(flatten)]
+    view: ViewArgs,
+    /// The loss.
+    #[arg(long, value_enum, default_value_t = LossChoice::Mse)]
+    loss: LossChoice,
+    /// Output directory.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+pub fn run(args: &Args) -> Result<()> {
+    let mesh = Mesh::load_obj(&args.mesh)?;
+    let view = args.view.view()?;
+    let loss: vkdr::loss::Loss = args.loss.into();
+    let ctx = Context::new()?;
+    let result = evaluate(&ctx, &mesh, view, &args.observed, loss, &args.out)?;
+    println!("loss ({}): {:e}", loss.name(), result.loss[0]);
+    let p = result.pose_gradient[0];
+    println!(
+        "pose gradient: translation [{:e}, {:e}, {:e}], rotation [{:e}, {:e}, {:e}]",
+        p[0], p[1], p[2], p[3], p[4], p[5]
+    );
+    println!(
+        "wrote {0}/loss.json, {0}/vertex_grad.npy, {0}/pose_grad.npy, {0}/gradient.png",
+        args.out.display()
+    );
+    Ok(())
+}
 
 /// One view of `mesh` compared with `mask` (coverage, no attributes or shading).
 pub fn mask_scene(
@@ -36,7 +75,9 @@ pub fn mask_scene(
     )
 }
 
-pub fn run(
+/// The loss and gradients of `mesh` against the mask in `observed`, written into `out`:
+/// loss.json, vertex_grad.npy, pose_grad.npy and gradient.png.
+fn evaluate(
     ctx: &Context,
     mesh: &Mesh,
     view: View,

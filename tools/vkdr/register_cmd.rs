@@ -13,8 +13,9 @@ use vkdr::shape::ShapeSpace;
 use vkdr::{Camera, Mesh, Pose};
 use vkdr_app::eval::{self, EvalSettings};
 
+use crate::args::{parse_view, DepthLossArgs, ShadingArgs, ViewArgs};
 use crate::choices::{LossChoice, OptimizerChoice};
-use crate::{eval_cmd, parse_view, DepthLossArgs, ShadingArgs, ViewArgs};
+use crate::eval_cmd;
 
 #[derive(clap::Args)]
 pub struct Args {

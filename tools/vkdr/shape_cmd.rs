@@ -11,6 +11,48 @@ use vkdr::shape::ShapeSpace;
 use vkdr::Mesh;
 use vkdr_app::eval::mean_nearest;
 
+use crate::args::CpdArgs;
+use crate::check_cmd;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// DIR/<category> with canonical.obj and train/*.obj.
+    category_dir: PathBuf,
+    /// Use train/NAME.obj as the canonical instead of canonical.obj (or `auto`: the
+    /// training instance with the lowest mean nearest-neighbour distance to the others).
+    #[arg(long)]
+    canonical: Option<String>,
+    #[arg(long, default_value_t = 5)]
+    dims: usize,
+    #[command(flatten)]
+    cpd: CpdArgs,
+    /// Run even where `check-dataset` finds the category unusable.
+    #[arg(long)]
+    skip_checks: bool,
+    /// Output .npz (a .npz.json description is written beside it).
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+pub fn run(args: &Args) -> Result<()> {
+    let params = args.cpd.params()?;
+    if args.dims == 0 {
+        bail!("--dims must be at least 1 (a shape space of no dimensions is the canonical alone)");
+    }
+    check_cmd::check_first(
+        &args.category_dir,
+        args.skip_checks,
+        args.canonical.is_some(),
+    )?;
+    build(
+        &args.category_dir,
+        args.canonical.as_deref(),
+        args.dims,
+        &params,
+        &args.out,
+    )
+}
+
 /// The `.obj` files of a directory, sorted by name.
 pub fn obj_files(dir: &Path) -> Result<Vec<PathBuf>> {
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
@@ -22,7 +64,9 @@ pub fn obj_files(dir: &Path) -> Result<Vec<PathBuf>> {
     Ok(files)
 }
 
-pub fn run(
+/// Builds the shape space of the category in `dir` (from `canonical`, see `--canonical`)
+/// and saves it to `out`.
+pub fn build(
     dir: &Path,
     canonical: Option<&str>,
     dims: usize,

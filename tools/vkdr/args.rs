@@ -1,0 +1,154 @@
+//! The flag groups several commands share: camera and pose (render, grad, register), CPD
+//! (cpd, shape-space), depth loss and shading (register, eval).
+
+use anyhow::Result;
+
+use vkdr::camera::{parse_numbers, parse_size};
+use vkdr::cpd::CpdParams;
+use vkdr::raster::View;
+use vkdr::{Camera, Pose};
+
+/// The CPD flags shared by cpd and shape-space.
+#[derive(clap::Args)]
+pub struct CpdArgs {
+    /// Kernel width, in units of the source's RMS radius.
+    #[arg(long, allow_negative_numbers = true, default_value_t = CpdParams::default().beta)]
+    pub beta: f64,
+    /// Smoothness weight.
+    #[arg(long = "lambda", allow_negative_numbers = true, default_value_t = CpdParams::default().lambda)]
+    pub lambda: f64,
+    /// Outlier weight, in (0, 1).
+    #[arg(long, allow_negative_numbers = true, default_value_t = CpdParams::default().w)]
+    pub w: f64,
+    #[arg(long, default_value_t = CpdParams::default().max_iterations)]
+    pub max_iterations: usize,
+    /// Stop when an iteration lowers the objective (negative log-likelihood plus the
+    /// smoothness term) by less than this fraction of it and moves the points by less
+    /// than this many source RMS radii on average.
+    #[arg(long, allow_negative_numbers = true, default_value_t = CpdParams::default().tolerance)]
+    pub tolerance: f64,
+    /// Replace the kernel by its Nystrom approximation from this many landmarks (faster,
+    /// approximate); by default the M-step uses the exact kernel.
+    #[arg(long)]
+    pub rank: Option<usize>,
+    /// Plain EM iterations, as pycpd's (no SQUAREM extrapolation).
+    #[arg(long)]
+    pub no_accelerate: bool,
+    /// Above twice this many source points, register subsets of this many source points
+    /// first and start the full sets from their field: 2-3x faster from 2e4 points on,
+    /// accuracy varies (e.g. 5000; 0: one stage)
+    #[arg(long, default_value_t = 0)]
+    pub coarse: usize,
+}
+
+impl CpdArgs {
+    /// The parameters, checked before any file is read.
+    pub fn params(&self) -> Result<CpdParams> {
+        let params = CpdParams {
+            beta: self.beta,
+            lambda: self.lambda,
+            w: self.w,
+            max_iterations: self.max_iterations,
+            tolerance: self.tolerance,
+            rank: self.rank,
+            accelerate: !self.no_accelerate,
+            coarse: (self.coarse > 0).then_some(self.coarse),
+        };
+        params.validate()?;
+        Ok(params)
+    }
+}
+
+/// The camera and pose flags shared by render, grad and register.
+#[derive(clap::Args)]
+pub struct ViewArgs {
+    /// Pinhole intrinsics in pixels: fx,fy,cx,cy.
+    #[arg(long)]
+    pub intrinsics: String,
+    /// Image size WxH.
+    #[arg(long)]
+    pub size: String,
+    /// Object-to-camera pose tx,ty,tz,rx,ry,rz (metres; axis-angle in radians).
+    #[arg(long, allow_hyphen_values = true)]
+    pub pose: String,
+    /// Near clipping distance in metres.
+    #[arg(long, allow_negative_numbers = true, default_value_t = Camera::DEFAULT_NEAR)]
+    pub near: f64,
+}
+
+impl ViewArgs {
+    pub fn view(&self) -> Result<View> {
+        parse_view(&self.intrinsics, &self.size, &self.pose, self.near)
+    }
+}
+
+#[derive(clap::Args)]
+pub struct DepthLossArgs {
+    /// Depth residuals up to this (metres) cost quadratically, beyond linearly (Huber).
+    #[arg(long, allow_negative_numbers = true, default_value_t = vkdr::diff::DepthLoss::default().scale)]
+    pub depth_scale: f64,
+    /// Weight of the depth term against the mask (or shading) term.
+    #[arg(long, allow_negative_numbers = true, default_value_t = vkdr::diff::DepthLoss::default().weight)]
+    pub depth_weight: f64,
+}
+
+impl DepthLossArgs {
+    pub fn loss(&self) -> Result<vkdr::diff::DepthLoss> {
+        let loss = vkdr::diff::DepthLoss {
+            scale: self.depth_scale,
+            weight: self.depth_weight,
+        };
+        loss.validate()?;
+        Ok(loss)
+    }
+}
+
+#[derive(clap::Args)]
+pub struct ShadingArgs {
+    /// Observe and compare grey Lambert shading as well as the mask (the pose alignment
+    /// still compares masks).
+    #[arg(long)]
+    pub shading: bool,
+    /// Direction towards the light in the camera frame (x right, y down, z forward).
+    #[arg(long, requires = "shading", default_value_t = default_light())]
+    pub light: String,
+    /// Ambient term of the shading, in [0, 1).
+    #[arg(long, allow_negative_numbers = true, requires = "shading", default_value_t = vkdr::diff::Shading::default().ambient)]
+    pub ambient: f64,
+}
+
+/// `Shading::default()`'s light as the flag writes it.
+fn default_light() -> String {
+    vkdr::diff::Shading::default()
+        .light
+        .map(|v| v.to_string())
+        .join(",")
+}
+
+impl ShadingArgs {
+    pub fn shading(&self) -> Result<Option<vkdr::diff::Shading>> {
+        if !self.shading {
+            return Ok(None);
+        }
+        let shading = vkdr::diff::Shading {
+            light: parse_numbers::<3>(&self.light, "--light")?,
+            ambient: self.ambient,
+        };
+        shading.unit_light()?;
+        Ok(Some(shading))
+    }
+}
+
+/// The camera and pose of the command-line flags.
+pub fn parse_view(intrinsics: &str, size: &str, pose: &str, near: f64) -> Result<View> {
+    let [fx, fy, cx, cy] = parse_numbers::<4>(intrinsics, "--intrinsics")?;
+    let (width, height) = parse_size(size)?;
+    let mut camera = Camera::new(fx, fy, cx, cy, width, height)?;
+    camera.near = near;
+    let camera = camera.validated()?;
+    let [tx, ty, tz, rx, ry, rz] = parse_numbers::<6>(pose, "--pose")?;
+    Ok(View {
+        camera,
+        pose: Pose::new([tx, ty, tz], [rx, ry, rz])?,
+    })
+}
