@@ -243,16 +243,20 @@ struct Pair {
 };
 
 // The pair's crossing where the crossing edge's function has values ef at f and eb at g.
+// What the crossing's position alpha along the pair decides: a crossing behind the front
+// pixel's centre (see find_crossing) counts as at it, and moves nothing there.
+void place_alpha(inout Pair pair, float alpha) {
+    pair.crossing.alpha = alpha;
+    pair.clamped = alpha < 0.0;
+    pair.affects_g = alpha > 0.5;
+    pair.weight = abs(max(alpha, 0.0) - 0.5);
+}
+
 void place_crossing(inout Pair pair, float ef, float eb) {
     pair.crossing.found = true;
-    pair.crossing.alpha = ef / (ef - eb);
     pair.crossing.ef = ef;
     pair.crossing.eb = eb;
-    // A crossing behind the front pixel's centre (see find_crossing) counts as at it, and
-    // moves nothing there.
-    pair.clamped = pair.crossing.alpha < 0.0;
-    pair.affects_g = pair.crossing.alpha > 0.5;
-    pair.weight = abs(max(pair.crossing.alpha, 0.0) - 0.5);
+    place_alpha(pair, ef / (ef - eb));
 }
 
 // The pair (p, q) with q = p + step (step (1, 0) or (0, 1)), both inside the image.
@@ -303,10 +307,8 @@ uint encode_pair(Pair pair, ivec2 p) {
         | pair.crossing.triangle;
 }
 
-// The pair (p, q) from its record and its crossing's alpha, as far as antialiasing needs
-// it: which pixel is in front, alpha and what place_crossing derives from alpha (the
-// backward needs the edge's vertices too: decode_pair).
-Pair decode_pair_weight(ivec2 p, ivec2 q, uint record, float alpha) {
+// The pair (p, q) from its record: whether it is valid and which pixel is in front.
+Pair decode_sides(ivec2 p, ivec2 q, uint record) {
     Pair pair;
     pair.valid = (record & PAIR_VALID) != 0u;
     pair.lost = false;
@@ -316,23 +318,20 @@ Pair decode_pair_weight(ivec2 p, ivec2 q, uint record, float alpha) {
     bool p_front = (record & PAIR_P_FRONT) != 0u;
     pair.f = p_front ? p : q;
     pair.g = p_front ? q : p;
-    pair.crossing.alpha = alpha;
-    pair.clamped = alpha < 0.0;
-    pair.affects_g = alpha > 0.5;
-    pair.weight = abs(max(alpha, 0.0) - 0.5);
+    return pair;
+}
+
+// The pair as far as antialiasing needs it, from its record and its crossing's alpha (the
+// backward needs the edge's vertices too: decode_pair).
+Pair decode_pair_weight(ivec2 p, ivec2 q, uint record, float alpha) {
+    Pair pair = decode_sides(p, q, record);
+    if (pair.valid) place_alpha(pair, alpha);
     return pair;
 }
 
 Pair decode_pair(ViewData vd, ivec2 p, ivec2 q, bool along_x, uint record) {
-    Pair pair;
-    pair.valid = (record & PAIR_VALID) != 0u;
-    pair.lost = false;
-    pair.missed = false;
-    pair.clamped = false;
+    Pair pair = decode_sides(p, q, record);
     if (!pair.valid) return pair;
-    bool p_front = (record & PAIR_P_FRONT) != 0u;
-    pair.f = p_front ? p : q;
-    pair.g = p_front ? q : p;
     pair.crossing.lost = false;
     pair.crossing.missed = false;
     pair.crossing.triangle = record & PAIR_TRIANGLE;
