@@ -6,9 +6,20 @@
 // Stage 1: shade (coverage or interpolated attributes), antialias across the silhouette
 // edges of the pixel's four pairs, write the value and add the loss terms to stats_fixed
 // (int64 atomics: the same sum in any order).
+// Both stages also leave the ingredients of the backward's bound on its terms in
+// work_count (diff_pass.glsl gradient_bounds): the crossings' camera terms per unit
+// (stage 0); the colours, the loss magnitudes and with attributes the interpolation's
+// terms per unit (stage 1).
 #include "diff_pass.glsl"
 
 layout(local_size_x = 64) in;
+
+// This invocation's maxima of the bound's ingredients, added once per subgroup at the end.
+float largest_crossing = 0.0;
+float largest_colour = 0.0;
+float largest_shading = 0.0;
+float largest_barycentric = 0.0;
+vec2 largest_loss = vec2(0.0);
 
 // The record of the pair of p with p + STEPS[s] (s = 0 or 1); its alpha in `alpha`.
 uint pair_record(uint view, ivec2 p, ivec2 size, int s, out float alpha) {
@@ -19,6 +30,7 @@ uint pair_record(uint view, ivec2 p, ivec2 size, int s, out float alpha) {
     if (pair.lost) atomicAdd(work_count[LOST_WALKS], 1u);
     if (pair.missed) atomicAdd(work_count[MISSED_STARTS], 1u);
     if (pair.valid) alpha = pair.crossing.alpha;
+    largest_crossing = max(largest_crossing, crossing_magnitude(views[view], pair));
     return encode_pair(pair, p);
 }
 
@@ -27,6 +39,13 @@ vec4 antialiased_value(uint view, ivec2 p, ivec2 size, uint id) {
     ViewData vd;
     if (pc.channels > 0u) vd = views[view];
     vec4 c = colour_at(vd, view, p, id);
+    vec4 own = abs(blended(c));
+    largest_colour = max(largest_colour, own.x + own.y + own.z + own.w);
+    if (pc.channels > 0u && id != 0u) {
+        vec2 shading = shading_magnitudes(vd, view, p, id);
+        largest_shading = max(largest_shading, shading.x);
+        largest_barycentric = max(largest_barycentric, shading.y);
+    }
     vec4 a = c;
     for (int s = 0; s < 4; ++s) {
         ivec2 q = p + STEPS[s];
@@ -59,6 +78,7 @@ void main() {
         }
         vec4 a = antialiased_value(view, p, size, ids[index]);
         store_antialiased(index, a);
+        largest_loss = max(largest_loss, loss_magnitudes(index, a));
         vec3 terms = loss_excess(index, a);
         for (int k = 0; k < 3; ++k) {
             if (terms[k] != 0.0) atomicAdd(stats_fixed[3u * view + uint(k)], to_fixed(terms[k], pc.stats_shift));
@@ -67,4 +87,13 @@ void main() {
     // A driver that ended the loop early (lavapipe's loop limit) is reported, not trusted.
     uint expected = grid_items(gl_GlobalInvocationID.x, stride, count);
     if (done < expected) atomicAdd(work_count[UNFINISHED], expected - done);
+    if (pc.stage == 0u) {
+        add_maximum(CROSSING_MAX, largest_crossing);
+    } else {
+        add_maximum(COLOUR_MAX, largest_colour);
+        add_maximum(SHADING_MAX, largest_shading);
+        add_maximum(BARYCENTRIC_MAX, largest_barycentric);
+        add_maximum(LOSS_MAX, largest_loss.x);
+        add_maximum(LOSS_MAX + 1u, largest_loss.y);
+    }
 }

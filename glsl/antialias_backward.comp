@@ -9,44 +9,45 @@
 //     that moved colour into or out of it) to the attributes (grad_attributes) and, via
 //     the exact barycentrics, to the triangle's three clip-space vertices.
 // The pairs are the forward's records (pairs_x, pairs_y), so no pass here walks.
-// It runs twice: stage 0 only finds the largest term of each sum kind (atomicMax into
-// work_count[CAMERA_MAX], [ATTRIBUTE_MAX]), stage 1 adds every term at the scale that
-// implies (include/fixed_point.glsl); fixed_resolve.comp turns the sums into floats.
+// One pass: the scale of the fixed-point sums (include/fixed_point.glsl) comes from a
+// bound on every term that the forward left behind (diff_pass.glsl gradient_bounds); the
+// first invocation stores it (work_count[CAMERA_MAX], [ATTRIBUTE_MAX]) for
+// fixed_resolve.comp and pose_gradient.comp, and every invocation records the largest
+// term it added (work_count[CAMERA_SEEN], [ATTRIBUTE_SEEN]), so that a term above the
+// bound (or not finite) makes the resolved sums NaN instead of silently wrong.
 #include "diff_pass.glsl"
 
 layout(local_size_x = 64) in;
 
-// Stage 0: the largest term magnitudes this invocation has seen (magnitude_bits), merged
-// into work_count once per subgroup at the end rather than by one atomicMax per term, all
-// on one word.
+// The largest term magnitudes this invocation added (magnitude_bits), merged into
+// work_count once per subgroup at the end.
 uint largest_camera = 0u;
 uint largest_attribute = 0u;
 
-// Adds one term of a fixed-point sum, or (stage 0) records its magnitude.
-void add_camera_term(uint at, float g, int shift) {
-    if (pc.stage == 0u) largest_camera = max(largest_camera, magnitude_bits(g));
-    else if (g != 0.0) atomicAdd(grad_camera_fixed[at], to_fixed(g, shift));
-}
-
-void add_attribute_term(uint at, float g, int shift) {
-    if (pc.stage == 0u) largest_attribute = max(largest_attribute, magnitude_bits(g));
-    else if (g != 0.0) atomicAdd(grad_attributes_fixed[at], to_fixed(g, shift));
-}
-
-// The scales of stage 1's sums (read once per invocation in main).
+// The scales of the sums (set once per invocation in main).
 int camera_shift = 0;
 int attribute_shift = 0;
 
-// d clip / d camera is (sx, sy, ox, oy): x_clip = sx x + ox z, y_clip = sy y + oy z, w = z.
+// Adds one term of a fixed-point sum.
+void add_camera_term(uint at, float g) {
+    if (g == 0.0) return;
+    largest_camera = max(largest_camera, magnitude_bits(g));
+    atomicAdd(grad_camera_fixed[at], to_fixed(g, camera_shift));
+}
+
+void add_attribute_term(uint at, float g) {
+    if (g == 0.0) return;
+    largest_attribute = max(largest_attribute, magnitude_bits(g));
+    atomicAdd(grad_attributes_fixed[at], to_fixed(g, attribute_shift));
+}
+
 void add_clip_gradient(ViewData vd, uint view, uint v, vec3 g_clip) {
-    vec2 s = clip_scale(vd);
-    vec2 o = clip_shift(vd);
-    vec3 g = vec3(s.x * g_clip.x, s.y * g_clip.y, o.x * g_clip.x + o.y * g_clip.y + g_clip.z);
+    vec3 g = camera_gradient(vd, g_clip);
     uint at = 3u * (view * pc.vertex_count + v);
-    if (pc.stage == 1u) touched[v / VERTEX_BLOCK] = 1u;
-    add_camera_term(at, g.x, camera_shift);
-    add_camera_term(at + 1u, g.y, camera_shift);
-    add_camera_term(at + 2u, g.z, camera_shift);
+    touched[v / VERTEX_BLOCK] = 1u;
+    add_camera_term(at, g.x);
+    add_camera_term(at + 1u, g.y);
+    add_camera_term(at + 2u, g.z);
 }
 
 void crossing_backward(ViewData vd, uint view, Pair pair) {
@@ -57,21 +58,11 @@ void crossing_backward(ViewData vd, uint view, Pair pair) {
     vec4 cg = colour_at(vd, view, pair.g, id_at(pair.g, view));
     float g_alpha = dot(ga, blended(cf - cg));
     if (g_alpha == 0.0) return;
-    Crossing c = pair.crossing;
-    float d = c.ef - c.eb;
-    float g_ef = g_alpha * -c.eb / (d * d);
-    float g_eb = g_alpha * c.ef / (d * d);
-    Triangle tri = c.tri;
-    int i = (c.edge + 1) % 3;
-    int j = (c.edge + 2) % 3;
-    vec3 gi = vec3(0.0);
-    vec3 gj = vec3(0.0);
-    vec2 pf = pixel_ndc(pair.f, vd);
-    vec2 pb = pixel_ndc(pair.g, vd);
-    edge_function_backward(tri.clip[i], tri.clip[j], pf, g_ef, gi, gj);
-    edge_function_backward(tri.clip[i], tri.clip[j], pb, g_eb, gi, gj);
-    add_clip_gradient(vd, view, tri.v[i], gi);
-    add_clip_gradient(vd, view, tri.v[j], gj);
+    vec3 gi, gj;
+    crossing_gradients(vd, pair, g_alpha, gi, gj);
+    int edge = pair.crossing.edge;
+    add_clip_gradient(vd, view, pair.crossing.tri.v[(edge + 1) % 3], gi);
+    add_clip_gradient(vd, view, pair.crossing.tri.v[(edge + 2) % 3], gj);
 }
 
 void handle_pixel(uint index) {
@@ -113,7 +104,7 @@ void handle_pixel(uint index) {
     vec3 g_b = vec3(0.0);
     for (int k = 0; k < 3; ++k) {
         for (uint ch = 0u; ch < pc.channels; ++ch) {
-            add_attribute_term(attribute_index(view, tri.v[k], ch), b[k] * g_colour[ch], attribute_shift);
+            add_attribute_term(attribute_index(view, tri.v[k], ch), b[k] * g_colour[ch]);
             g_b[k] += g_colour[ch] * attributes[attribute_index(view, tri.v[k], ch)];
         }
     }
@@ -128,9 +119,14 @@ void handle_pixel(uint index) {
 
 void main() {
     uint count = work_count[0];
-    if (pc.stage == 1u) {
-        camera_shift = listed_shift(work_count[CAMERA_MAX], TERMS_PER_LISTED, count);
-        attribute_shift = listed_shift(work_count[ATTRIBUTE_MAX], TERMS_PER_LISTED, count);
+    vec2 bounds = gradient_bounds();
+    uint camera_bits = magnitude_bits(bounds.x);
+    uint attribute_bits = magnitude_bits(bounds.y);
+    camera_shift = listed_shift(camera_bits, TERMS_PER_LISTED, count);
+    attribute_shift = listed_shift(attribute_bits, TERMS_PER_LISTED, count);
+    if (gl_GlobalInvocationID.x == 0u) {
+        work_count[CAMERA_MAX] = camera_bits;
+        work_count[ATTRIBUTE_MAX] = attribute_bits;
     }
     uint stride = gl_NumWorkGroups.x * gl_WorkGroupSize.x;
     uint done = 0u;
@@ -141,12 +137,10 @@ void main() {
     // A driver that ended the loop early (lavapipe's loop limit) is reported, not trusted.
     uint expected = grid_items(gl_GlobalInvocationID.x, stride, count);
     if (done < expected) atomicAdd(work_count[UNFINISHED], expected - done);
-    if (pc.stage == 0u) {
-        uint camera_bits = subgroupMax(largest_camera);
-        uint attribute_bits = subgroupMax(largest_attribute);
-        if (subgroupElect()) {
-            if (camera_bits > 0u) atomicMax(work_count[CAMERA_MAX], camera_bits);
-            if (attribute_bits > 0u) atomicMax(work_count[ATTRIBUTE_MAX], attribute_bits);
-        }
+    uint camera_seen = subgroupMax(largest_camera);
+    uint attribute_seen = subgroupMax(largest_attribute);
+    if (subgroupElect()) {
+        if (camera_seen > 0u) atomicMax(work_count[CAMERA_SEEN], camera_seen);
+        if (attribute_seen > 0u) atomicMax(work_count[ATTRIBUTE_SEEN], attribute_seen);
     }
 }

@@ -40,7 +40,8 @@ layout(push_constant, std430) uniform Constants {
     uint stage;
     uint subgroups;  // subgroups per workgroup (the partial slots of one workgroup)
     uint from_fixed;  // 1: read grad_camera_fixed, 0: grad_camera
-    uint max_slot;  // work_count slot of the largest fixed-point term (fixed_resolve.comp)
+    uint max_slot;  // work_count slots of the bound on the fixed-point terms and of the
+    uint seen_slot; // largest one (fixed_resolve.comp)
     uint terms_per_listed;
 } pc;
 
@@ -55,7 +56,7 @@ void main() {
         }
         return;
     }
-    uint max_bits = work_count[pc.max_slot];
+    uint max_bits = checked_bits(work_count[pc.max_slot], work_count[pc.seen_slot]);
     int shift = listed_shift(max_bits, pc.terms_per_listed, work_count[0]);
     bool finite = pc.from_fixed == 0u || max_bits < NON_FINITE_BITS;
     // A block is one workgroup's worth of vertices (VERTEX_BLOCK in diff_pass.glsl).

@@ -44,9 +44,22 @@ layout(set = 0, binding = 21, std430) buffer AlphasX { float alphas_x[]; };
 layout(set = 0, binding = 22, std430) buffer AlphasY { float alphas_y[]; };
 const uint VERTEX_BLOCK = 64u;
 
-// work_count slots after the count and dispatch arguments (LOST_WALKS = 4 in diff.glsl):
-const uint CAMERA_MAX = 5u;     // magnitude_bits of the largest camera-gradient term
+// work_count slots after the count and dispatch arguments (LOST_WALKS = 4, MISSED_STARTS
+// = 7 and UNFINISHED = 8 in diff.glsl). The backward adds its terms in one pass, at a
+// scale set by a bound on the largest term that the forward's passes leave behind
+// (gradient_bounds below):
+const uint CAMERA_MAX = 5u;     // magnitude_bits of that bound for camera-gradient terms
 const uint ATTRIBUTE_MAX = 6u;  // the same for attribute-gradient terms
+// The bound's ingredients, magnitude_bits maxima over the listed pixels:
+const uint CROSSING_MAX = 9u;   // a crossing's camera terms per unit d L / d alpha (pairs)
+const uint COLOUR_MAX = 10u;    // |blended colour|_1 (antialias)
+const uint SHADING_MAX = 11u;   // interpolation's camera terms per unit |dL/dc| (antialias)
+const uint BARYCENTRIC_MAX = 12u;  // |barycentric| (antialias)
+const uint LOSS_MAX = 13u;      // and 14: loss_magnitudes (antialias)
+// What the backward's terms came to (its largest magnitudes): above the bound, the
+// resolve reports NaN rather than a sum that may have wrapped.
+const uint CAMERA_SEEN = 15u;
+const uint ATTRIBUTE_SEEN = 16u;
 // A listed pixel adds at most this many terms to one vertex's sum (its own triangle's
 // interpolation and the crossings of its two forward pairs).
 const uint TERMS_PER_LISTED = 3u;
@@ -64,8 +77,7 @@ layout(push_constant, std430) uniform Constants {
     uint width;
     uint height;
     int stats_shift;
-    uint stage;  // antialias.comp: 0 finds the pairs, 1 antialiases; its backward: 0
-                 // measures the largest terms, 1 adds them
+    uint stage;  // antialias.comp: 0 finds the pairs, 1 antialiases
     uint depth;     // 1: the last channel is camera-space depth (see depth_term)
     uint coverage;  // 1: channel 0 is coverage, a constant attribute 1 (mask with depth)
     float depth_scale;   // metres: residuals up to it cost quadratically (Huber)
@@ -113,3 +125,100 @@ Pair pair_weight_at(uint view, ivec2 p, int s) {
 }
 
 #include "loss.glsl"
+
+// d camera / d clip applied to a clip-space gradient: x_clip = sx x + ox z,
+// y_clip = sy y + oy z, w = z.
+vec3 camera_gradient(ViewData vd, vec3 g_clip) {
+    vec2 s = clip_scale(vd);
+    vec2 o = clip_shift(vd);
+    return vec3(s.x * g_clip.x, s.y * g_clip.y, o.x * g_clip.x + o.y * g_clip.y + g_clip.z);
+}
+
+// A bound on |camera_gradient(vd, g)| for every |g| <= bound (componentwise).
+vec3 camera_gradient_bound(ViewData vd, vec3 bound) {
+    vec2 s = abs(clip_scale(vd));
+    vec2 o = abs(clip_shift(vd));
+    return vec3(s.x * bound.x, s.y * bound.y, o.x * bound.x + o.y * bound.y + bound.z);
+}
+
+float largest_component(vec3 v) { return max(abs(v.x), max(abs(v.y), abs(v.z))); }
+
+// The clip-space gradients of a crossing's edge vertices (triangle corners (edge + 1) % 3
+// and (edge + 2) % 3) for dL/d alpha = g_alpha: alpha = ef / (ef - eb), the edge function
+// at the pair's two pixel centres.
+void crossing_gradients(ViewData vd, Pair pair, float g_alpha, out vec3 gi, out vec3 gj) {
+    Crossing c = pair.crossing;
+    float d = c.ef - c.eb;
+    float g_ef = g_alpha * -c.eb / (d * d);
+    float g_eb = g_alpha * c.ef / (d * d);
+    int i = (c.edge + 1) % 3;
+    int j = (c.edge + 2) % 3;
+    gi = vec3(0.0);
+    gj = vec3(0.0);
+    edge_function_backward(c.tri.clip[i], c.tri.clip[j], pixel_ndc(pair.f, vd), g_ef, gi, gj);
+    edge_function_backward(c.tri.clip[i], c.tri.clip[j], pixel_ndc(pair.g, vd), g_eb, gi, gj);
+}
+
+// The largest camera term of a crossing per unit dL/d alpha (antialias.comp stage 0).
+float crossing_magnitude(ViewData vd, Pair pair) {
+    if (!pair.valid || pair.clamped) return 0.0;
+    vec3 gi, gj;
+    crossing_gradients(vd, pair, 1.0, gi, gj);
+    return max(largest_component(camera_gradient(vd, gi)), largest_component(camera_gradient(vd, gj)));
+}
+
+// The backward's one pass needs the scale of its fixed-point sums before it adds the first
+// term, so the forward passes record what bounds every term (the ingredient slots above)
+// and the backward multiplies them out (gradient_bounds). With G a bound on |dL/dA| at
+// every listed pixel (loss_bound), C on |blended colour|_1, X the crossings' slot, S the
+// interpolation's and B the barycentrics':
+//   a crossing's term is d L/d alpha = dot(dL/dA, blended(cf - cg)) (at most 2 G C) times
+//     its camera term per unit, at most X;
+//   a pixel's dL/dc is its own dL/dA plus +-w times each of its (at most four) pairs'
+//     (w <= 1/2), so |dL/dc| <= 3 G: its interpolation terms are at most 3 G S (camera) and
+//     3 G B (attributes).
+// Twice that, for float rounding. The bound is loose by the spread of dL/dA over the
+// pixels (the largest term may sit where dL/dA is small); the sums' resolution stays far
+// below float32's (include/fixed_point.glsl).
+vec2 gradient_bounds() {
+    float g = 0.0;
+    vec2 largest = vec2(uintBitsToFloat(work_count[LOSS_MAX]), uintBitsToFloat(work_count[LOSS_MAX + 1u]));
+    for (uint view = 0u; view < uint(views.length()); ++view) g = max(g, loss_bound(largest, view));
+    float colour = uintBitsToFloat(work_count[COLOUR_MAX]);
+    float crossing = uintBitsToFloat(work_count[CROSSING_MAX]);
+    float shading = uintBitsToFloat(work_count[SHADING_MAX]);
+    float barycentric = uintBitsToFloat(work_count[BARYCENTRIC_MAX]);
+    float camera = 2.0 * g * max(2.0 * colour * crossing, 3.0 * shading);
+    float attributes_ = 2.0 * 3.0 * g * barycentric;
+    return vec2(camera, attributes_);
+}
+
+// Per unit |dL/dc|: bounds on the interpolation's camera terms at pixel p (showing
+// triangle id - 1) and on its barycentrics, as antialias_backward.comp handle_pixel forms
+// them: dL/db_k = sum over channels of dL/dc * attribute, dL/de_k = (dL/db_k -
+// dot(b, dL/db)) / sum(e), then through the edge functions to the clip-space corners.
+vec2 shading_magnitudes(ViewData vd, uint view, ivec2 p, uint id) {
+    Triangle tri = load_triangle(vd, id - 1u);
+    vec2 np = pixel_ndc(p, vd);
+    vec3 e = edge_functions(tri.clip[0], tri.clip[1], tri.clip[2], np);
+    float sum = e.x + e.y + e.z;
+    vec3 b = abs(e / sum);
+    vec3 g_b = vec3(0.0);
+    for (int k = 0; k < 3; ++k) {
+        for (uint ch = 0u; ch < pc.channels; ++ch) g_b[k] += abs(attributes[attribute_index(view, tri.v[k], ch)]);
+    }
+    vec3 g_e = (g_b + dot(b, g_b)) / abs(sum);
+    vec3 g_clip[3] = vec3[3](vec3(0.0), vec3(0.0), vec3(0.0));
+    edge_function_backward_bound(tri.clip[1], tri.clip[2], np, g_e.x, g_clip[1], g_clip[2]);
+    edge_function_backward_bound(tri.clip[2], tri.clip[0], np, g_e.y, g_clip[2], g_clip[0]);
+    edge_function_backward_bound(tri.clip[0], tri.clip[1], np, g_e.z, g_clip[0], g_clip[1]);
+    float camera = 0.0;
+    for (int k = 0; k < 3; ++k) camera = max(camera, largest_component(camera_gradient_bound(vd, g_clip[k])));
+    return vec2(camera, max(b.x, max(b.y, b.z)));
+}
+
+// Adds a maximum of non-negative floats to a slot: once per subgroup.
+void add_maximum(uint slot, float value) {
+    uint bits = subgroupMax(magnitude_bits(value));
+    if (subgroupElect() && bits > 0u) atomicMax(work_count[slot], bits);
+}

@@ -31,4 +31,13 @@ void edge_function_backward(vec3 ci, vec3 cj, vec2 p, float g, inout vec3 gi, in
     gj += vec3(g_aj, -dot(g_aj, p));
 }
 
+// Adds bounds on |g * de/dc_i| and |g * de/dc_j| (componentwise) for every |g| <= bound.
+void edge_function_backward_bound(vec3 ci, vec3 cj, vec2 p, float bound, inout vec3 bi, inout vec3 bj) {
+    vec2 ai = abs(ci.xy - p * ci.z);
+    vec2 aj = abs(cj.xy - p * cj.z);
+    vec2 ap = abs(p);
+    bi += bound * vec3(aj.y, aj.x, aj.y * ap.x + aj.x * ap.y);
+    bj += bound * vec3(ai.y, ai.x, ai.y * ap.x + ai.x * ap.y);
+}
+
 #endif  // EDGES_GLSL

@@ -4,10 +4,11 @@
 // results differ from run to run in the last bits (and an optimiser amplifies those).
 // Sums that many threads add to are kept as int64 fixed point instead: integer addition
 // is associative, so the order cannot matter. The scale 2^shift is chosen from the data:
-// the largest term's magnitude (found first with atomicMax over the float bits, which is
-// order-free too) and the most terms one sum can take, so that no sum can pass 2^62; the
-// resolution is then 2^-(62 - headroom) of the largest term (about 4e-12 of it with 2^24
-// terms), far below float32's.
+// the largest term's magnitude (found with atomicMax over the float bits, which is
+// order-free too) or a bound on it (the differentiable renderer's backward), and the
+// most terms one sum can take, so that no sum can pass 2^62; the resolution is then
+// 2^-(62 - headroom) of the largest term or bound (about 4e-12 of it with 2^24 terms),
+// far below float32's.
 #extension GL_EXT_shader_explicit_arithmetic_types_int64 : require
 #extension GL_EXT_shader_atomic_int64 : require
 
@@ -35,6 +36,13 @@ float from_fixed(int64_t v, int shift) { return ldexp(float(v), -shift); }
 // terms per listed pixel, `listed` of them (and one pixel's worth of room).
 int listed_shift(uint max_bits, uint terms_per_listed, uint listed) {
     return fixed_shift(max_bits, terms_per_listed * listed + terms_per_listed);
+}
+
+// The bits to resolve sums with whose scale came from a bound (bound_bits) on terms that
+// turned out at most seen_bits: the bound's, or NON_FINITE_BITS (so NaN) when a term came
+// above it (it was not finite, or the bound failed and a sum may have wrapped).
+uint checked_bits(uint bound_bits, uint seen_bits) {
+    return seen_bits > bound_bits ? NON_FINITE_BITS : bound_bits;
 }
 
 // A fixed-point sum as a float; NaN when a term was not finite (max_bits at or above

@@ -1,7 +1,8 @@
 // The losses (src/loss owns them): per-pixel terms, their change where the object is,
 // and dL/dA, for the per-pixel passes of the differentiable renderer, which include this
 // through diff_pass.glsl (so a loss costs no pass of its own). Adding a loss: a code in
-// loss_codes.glsl and `Loss`, and its branch in loss_terms, loss_excess and loss_gradient.
+// loss_codes.glsl and `Loss`, and its branch in loss_terms, loss_excess, loss_gradient,
+// loss_magnitudes and loss_bound.
 //
 // The including shader declares, before the include: the buffers observed[],
 // antialiased[], distance_field[], stats[] and ids[], and the push constants pc.loss,
@@ -112,4 +113,33 @@ vec4 loss_gradient(uint index, uint view) {
     }
     for (uint ch = image_channels(); ch < 4u; ++ch) g[ch] = 0.0;
     return g;
+}
+
+// Per-pixel magnitudes whose largest values over the listed pixels (`largest`, taken in
+// antialias.comp after the value A is known) give loss_bound, a bound on |dL/dA| at every
+// listed pixel for the backward's fixed-point scale (diff_pass.glsl gradient_bounds).
+vec2 loss_magnitudes(uint index, vec4 a) {
+    float n = float(pc.width * pc.height);
+    vec4 o = load_observed(index);
+    if (pc.loss == LOSS_MSE) {
+        vec4 d = abs(blended(a - o));
+        float m = 2.0 * max(max(d.x, d.y), max(d.z, d.w)) / (n * float(mse_channels()));
+        float r;
+        if (depth_compared(index, a, r)) m = max(m, abs(depth_term_gradient(r, n)));
+        return vec2(m, 0.0);
+    } else if (pc.loss == LOSS_IOU) {
+        return vec2(abs(o.x), abs(1.0 - o.x));
+    }
+    return vec2(abs(distance_field[index]) / n, 0.0);
+}
+
+// |dL/dA| <= loss_bound(largest, view) at every listed pixel of the view: for IoU,
+// |o U - I (1 - o)| / U^2 with the view's intersection I and union U.
+float loss_bound(vec2 largest, uint view) {
+    if (pc.loss == LOSS_IOU) {
+        float intersection = stats[4u * view + 1u];
+        float union_ = stats[4u * view + 2u];
+        return union_ > 0.0 ? (largest.x * union_ + abs(intersection) * largest.y) / (union_ * union_) : 0.0;
+    }
+    return largest.x;
 }

@@ -39,17 +39,22 @@ fn box_words(views: u32) -> u64 {
 }
 
 /// The work-count buffer: listed pixels, 3 dispatch arguments, then (at [`LOST_WALKS`])
-/// the silhouette searches that gave up since [`Scene::record_prepare`], then the largest
-/// camera- and attribute-gradient terms of the fixed-point sums (`CAMERA_MAX`,
+/// the silhouette searches that gave up since [`Scene::record_prepare`], then the bounds
+/// on the camera- and attribute-gradient terms of the fixed-point sums (`CAMERA_MAX`,
 /// `ATTRIBUTE_MAX` in `glsl/include/diff_pass.glsl`), then the last evaluation's pixel
 /// pairs whose line misses the front triangle ([`Scene::missed_starts`]), then (at
-/// [`UNFINISHED`]) the listed pixels a pass never reached since [`Scene::record_prepare`].
-const WORK_COUNT_WORDS: u64 = 9;
+/// [`UNFINISHED`]) the listed pixels a pass never reached since [`Scene::record_prepare`],
+/// then the bounds' ingredients and the largest terms the backward added (`CROSSING_MAX`
+/// to `ATTRIBUTE_SEEN` there), cleared with the first slots every evaluation.
+const WORK_COUNT_WORDS: u64 = 17;
 /// As `LOST_WALKS` in `glsl/include/diff.glsl`.
 const LOST_WALKS: usize = 4;
-/// As `CAMERA_MAX` and `ATTRIBUTE_MAX` in `glsl/include/diff_pass.glsl`.
+/// As `CAMERA_MAX`, `ATTRIBUTE_MAX`, `CAMERA_SEEN` and `ATTRIBUTE_SEEN` in
+/// `glsl/include/diff_pass.glsl`.
 const CAMERA_MAX: u32 = 5;
 const ATTRIBUTE_MAX: u32 = 6;
+const CAMERA_SEEN: u32 = 15;
+const ATTRIBUTE_SEEN: u32 = 16;
 /// The most items one invocation of a grid-stride pass loops over (as in
 /// `glsl/work_args.comp`): at a few dozen loop iterations an item, far from
 /// [`crate::gpu::LOOP_LIMIT`].
@@ -312,6 +317,7 @@ const _: () = assert!(shaders::LOSS_FINALIZE_COMP.takes::<FinalizeConstants>());
 struct ResolveConstants {
     count: u32,
     max_slot: u32,
+    seen_slot: u32,
     terms_per_listed: u32,
 }
 const _: () = assert!(shaders::FIXED_RESOLVE_COMP.takes::<ResolveConstants>());
@@ -326,6 +332,7 @@ struct PoseConstants {
     subgroups: u32,
     from_fixed: u32,
     max_slot: u32,
+    seen_slot: u32,
     terms_per_listed: u32,
 }
 const _: () = assert!(shaders::POSE_GRADIENT_COMP.takes::<PoseConstants>());
@@ -917,14 +924,21 @@ impl Scene {
         marks: &mut Marks,
     ) -> Result<()> {
         marks.start(rec);
-        // The listed pixels, dispatch arguments and largest terms; the counts of lost walks
-        // and unfinished pixels run on.
+        // The listed pixels, dispatch arguments, bounds and largest terms; the counts of
+        // lost walks and unfinished pixels run on.
         rec.fill_buffer_range(&self.work_count, 0, 4 * LOST_WALKS as u64, 0);
         let after_lost = 4 * (LOST_WALKS as u64 + 1);
         rec.fill_buffer_range(
             &self.work_count,
             after_lost,
             4 * UNFINISHED as u64 - after_lost,
+            0,
+        );
+        let after_unfinished = 4 * (UNFINISHED as u64 + 1);
+        rec.fill_buffer_range(
+            &self.work_count,
+            after_unfinished,
+            4 * WORK_COUNT_WORDS - after_unfinished,
             0,
         );
         // The loss sums start from the background's (record_prepare), the image from
@@ -1040,19 +1054,13 @@ impl Scene {
         marks.pass(rec, "loss")?;
         marks.phase(rec, 1);
 
-        // The backward twice: the largest terms first, then the fixed-point sums at the
-        // scale they allow (glsl/include/fixed_point.glsl), resolved to floats.
-        for stage in 0..2 {
-            let constants = PassConstants { stage, ..constants };
-            rec.run_compute(&renderer.backward, &bindings, &constants, work);
-            rec.memory_barrier();
-            marks.pass(
-                rec,
-                ["backward: largest terms", "backward: sums"][stage as usize],
-            )?;
-        }
+        // The backward: fixed-point sums at the scale the forward's bound on their terms
+        // allows (glsl/include/fixed_point.glsl), resolved to floats.
+        rec.run_compute(&renderer.backward, &bindings, &constants, work);
+        rec.memory_barrier();
+        marks.pass(rec, "backward")?;
         let vertices = self.mesh.vertex_count();
-        let mut resolve = |fixed: &Buffer, floats: &Buffer, count: u32, max_slot: u32| {
+        let mut resolve = |fixed: &Buffer, floats: &Buffer, count: u32, slots: (u32, u32)| {
             rec.run_compute(
                 &renderer.resolve,
                 &[
@@ -1062,7 +1070,8 @@ impl Scene {
                 ],
                 &ResolveConstants {
                     count,
-                    max_slot,
+                    max_slot: slots.0,
+                    seen_slot: slots.1,
                     terms_per_listed: TERMS_PER_LISTED,
                 },
                 Groups::Count(self.grid(count), 1, 1),
@@ -1075,7 +1084,7 @@ impl Scene {
                 &self.grad_camera_fixed,
                 &self.grad_camera,
                 n * vertices * 3,
-                CAMERA_MAX,
+                (CAMERA_MAX, CAMERA_SEEN),
             );
         }
         if self.channels > 0 {
@@ -1083,7 +1092,7 @@ impl Scene {
                 &self.grad_attributes_fixed,
                 &self.grad_attributes,
                 n * vertices * self.channels,
-                ATTRIBUTE_MAX,
+                (ATTRIBUTE_MAX, ATTRIBUTE_SEEN),
             );
         }
         rec.memory_barrier();
@@ -1112,6 +1121,7 @@ impl Scene {
             subgroups: self.subgroups,
             from_fixed: !shaded as u32,
             max_slot: CAMERA_MAX,
+            seen_slot: CAMERA_SEEN,
             terms_per_listed: TERMS_PER_LISTED,
         };
         let per_stage = [
