@@ -503,6 +503,9 @@ pub struct Row {
     /// The pose-noise error after moving each registered shape so that its vertex centroid
     /// is the oracle fit's (see `placed_like`).
     pub pose_noise_placed: Stat,
+    /// The pose-noise error of each registered shape where the registration put it: moved
+    /// by its registered pose and back by the true one (see `as_seen`).
+    pub pose_noise_seen: Stat,
     /// With `EvalSettings::from_truth`: pose and shape optimised from the true pose.
     pub from_truth: Option<Stat>,
     /// Mean iterations and milliseconds of a registration with the pose known...
@@ -535,6 +538,7 @@ pub struct Trial {
     pub known_pose: f64,
     pub pose_noise: f64,
     pub pose_noise_placed: f64,
+    pub pose_noise_seen: f64,
     /// The registered pose against the true one with pose noise: rotation (radians) and
     /// translation (metres).
     pub rotation_error: f64,
@@ -684,6 +688,21 @@ pub fn placed_like(vertices: &[DVec3], reference: &[DVec3]) -> Vec<DVec3> {
     vertices.iter().map(|&v| v + shift).collect()
 }
 
+/// The registered `vertices` (object frame) where the registration put them, in the true
+/// object frame: camera to object by the true `pose` after object to camera by the
+/// `registered` one. Their error against the test surface is the camera-frame distance
+/// between the registered surface at the registered pose and the test surface at the true
+/// pose, what a robot acting on the registration meets; a shape shifted in its own frame
+/// together with a pose shifted back (which one view cannot tell apart) costs nothing
+/// here.
+pub fn as_seen(vertices: &[DVec3], registered: Pose, pose: Pose) -> Vec<DVec3> {
+    let back = pose.inverse();
+    vertices
+        .iter()
+        .map(|&v| back.apply(registered.apply(v)))
+        .collect()
+}
+
 /// Evaluates one test instance against a built shape space.
 #[allow(clippy::too_many_arguments)] // the instance, its category's context, and progress
 pub fn evaluate_instance(
@@ -830,6 +849,7 @@ pub fn evaluate_instance(
             known_pose: known_error,
             pose_noise: error(&result.vertices),
             pose_noise_placed: error(&placed_like(&result.vertices, &oracle_vertices)),
+            pose_noise_seen: error(&as_seen(&result.vertices, result.pose, pose)),
             rotation_error,
             rotation_error_symmetric,
             translation_error,
@@ -859,6 +879,7 @@ pub fn evaluate_instance(
         known_pose_chamfer: Stat::of(&known_ch),
         pose_noise_worst: trials.iter().map(|t| t.pose_noise).fold(0.0, f64::max),
         pose_noise_placed: stat(|t| t.pose_noise_placed),
+        pose_noise_seen: stat(|t| t.pose_noise_seen),
         pose_noise: stat(|t| t.pose_noise),
         pose_noise_chamfer: Stat::of(&noisy_ch),
         from_truth: settings.from_truth.then(|| Stat::of(&from_truth)),
@@ -979,6 +1000,24 @@ mod tests {
         let placed = placed_like(&stretched, &reference);
         assert!((centroid(&placed) - centroid(&reference)).length() < 1e-12);
         assert!(((placed[0] - placed[1]) - (stretched[0] - stretched[1])).length() < 1e-12);
+    }
+
+    /// A shape shifted in its frame with the pose shifted back is seen where the true one
+    /// is; the true shape at a wrong pose is seen off by that pose.
+    #[test]
+    fn as_seen_compares_where_the_registration_put_the_shape() {
+        let mesh = Mesh::bottle(12);
+        let truth = surface_sample(&mesh, 300, 5);
+        let error = |v: &[DVec3]| surface_error(&truth, v, mesh.triangles());
+        let pose = Pose::new([0.02, -0.01, 0.6], [0.3, -0.2, 0.1]).unwrap();
+        let shift = DVec3::new(0.01, -0.02, 0.005);
+        let shifted: Vec<DVec3> = mesh.points().iter().map(|&v| v + shift).collect();
+        let back = Pose::at([-shift.x, -shift.y, -shift.z]).followed_by(&pose);
+        assert!(error(&shifted) > 1e-3);
+        assert!(error(&as_seen(&shifted, back, pose)) < 1e-9);
+        let off = Pose::at([0.0, 0.0, 0.004]).followed_by(&pose);
+        let seen = error(&as_seen(&mesh.points(), off, pose));
+        assert!(seen > 1e-4 && seen <= 0.004 + 1e-9, "{seen}");
     }
 
     /// Looking down from elevation e, the up axis lies 90 deg - e from the line of sight; at

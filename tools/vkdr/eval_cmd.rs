@@ -499,7 +499,7 @@ fn category_table(rows: &[Row]) -> String {
     let mut md = String::from(
         "\nPer category (means over its test instances; ratio = mean error / mean oracle error; \
          / optimum = mean error / mean space optimum):\n\n\
-         | category | oracle | space optimum | known pose | ratio | / optimum | pose noise | ratio | / optimum | worst noise trial | noise, placed (ratio) |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
+         | category | oracle | space optimum | known pose | ratio | / optimum | pose noise | ratio | / optimum | worst noise trial | noise, placed (ratio) | noise, as seen (ratio) |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for category in categories(rows) {
         let of: Vec<&Row> = rows.iter().filter(|r| r.category == category).collect();
@@ -509,8 +509,9 @@ fn category_table(rows: &[Row]) -> String {
         let (known, noise) = (mean(&|r| r.known_pose.mean), mean(&|r| r.pose_noise.mean));
         let worst = of.iter().map(|r| r.pose_noise_worst).fold(0.0, f64::max);
         let placed = mean(&|r| r.pose_noise_placed.mean);
+        let seen = mean(&|r| r.pose_noise_seen.mean);
         md.push_str(&format!(
-            "| {category} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} ({:.2}) |\n",
+            "| {category} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} ({:.2}) | {:.2} ({:.2}) |\n",
             1e3 * oracle,
             1e3 * optimum,
             1e3 * known,
@@ -521,7 +522,9 @@ fn category_table(rows: &[Row]) -> String {
             noise / optimum,
             1e3 * worst,
             1e3 * placed,
-            placed / oracle
+            placed / oracle,
+            1e3 * seen,
+            seen / oracle
         ));
     }
     md.push_str(&view_table(rows));
@@ -575,12 +578,12 @@ fn view_table(rows: &[Row]) -> String {
 /// One line per trial: the view, the errors, and the pose error with pose noise.
 fn trials_csv(rows: &[Row]) -> String {
     let mut csv = String::from(
-        "category,instance,trial,azimuth_deg,elevation_deg,long_axis_angle_deg,short_axis_angle_deg,known_pose,pose_noise,pose_noise_placed,rotation_error_deg,rotation_error_symmetric_deg,translation_error,known_pose_on_bound,pose_noise_on_bound\n",
+        "category,instance,trial,azimuth_deg,elevation_deg,long_axis_angle_deg,short_axis_angle_deg,known_pose,pose_noise,pose_noise_placed,pose_noise_seen,rotation_error_deg,rotation_error_symmetric_deg,translation_error,known_pose_on_bound,pose_noise_on_bound\n",
     );
     for r in rows {
         for (i, t) in r.trials.iter().enumerate() {
             csv.push_str(&format!(
-                "{},{},{i},{:.2},{:.2},{:.2},{:.2},{:e},{:e},{:e},{:.3},{:.3},{:e},{},{}\n",
+                "{},{},{i},{:.2},{:.2},{:.2},{:.2},{:e},{:e},{:e},{:e},{:.3},{:.3},{:e},{},{}\n",
                 r.category,
                 r.instance,
                 t.azimuth.to_degrees(),
@@ -590,6 +593,7 @@ fn trials_csv(rows: &[Row]) -> String {
                 t.known_pose,
                 t.pose_noise,
                 t.pose_noise_placed,
+                t.pose_noise_seen,
                 t.rotation_error.to_degrees(),
                 t.rotation_error_symmetric.to_degrees(),
                 t.translation_error,
@@ -618,10 +622,12 @@ pub fn write_reports(
          space optimum: the code with the least error itself for the true instance (a direct 3D fit: the best the shape space can do); \
          ratio = error / oracle error; / opt. = error / space optimum; chamfer = symmetric chamfer distance of the vertex sets (mm); \
          placed: the pose-noise error after moving each registered shape so that its vertex centroid is the oracle fit's \
-         (one view cannot tell a shape shifted in its frame from a shifted pose). \
+         (one view cannot tell a shape shifted in its frame from a shifted pose); \
+         as seen: the pose-noise error of each registered shape at its registered pose against the test surface at the true pose \
+         (the distance in the camera frame, what a robot acting on the registration meets; the oracle's is the same in either frame). \
          Registration: known pose, {} for {} iterations ({} loss); pose noise, the pose aligned alone for {} iterations ({} loss), \
          then pose and shape by {} for {} ({} loss).{}{}\n\n\
-         | category | instance | oracle | space optimum | known pose | ratio | / opt. | pose noise | ratio | / opt. | worst noise trial | noise, placed | chamfer oracle / known / noise | iterations known / noise | ms known / noise |{}\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|{}\n",
+         | category | instance | oracle | space optimum | known pose | ratio | / opt. | pose noise | ratio | / opt. | worst noise trial | noise, placed | noise, as seen | chamfer oracle / known / noise | iterations known / noise | ms known / noise |{}\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|{}\n",
         settings.observation(),
         c.fx, c.fy, c.cx, c.cy, c.width, c.height, settings.distance,
         settings.elevation.0.to_degrees(), settings.elevation.1.to_degrees(), settings.trials, settings.seed, settings.dims,
@@ -642,7 +648,7 @@ pub fn write_reports(
         if settings.from_truth { " from true pose | ratio |" } else { "" },
         if settings.from_truth { "---|---|" } else { "" },
     );
-    let mut csv = String::from("category,instance,oracle,known_pose_mean,known_pose_std,pose_noise_mean,pose_noise_std,iterations,ms,oracle_chamfer,known_pose_chamfer,pose_noise_chamfer,noise_iterations,noise_ms,from_truth_mean,from_truth_std,pose_noise_placed_mean,pose_noise_placed_std,space_optimum\n");
+    let mut csv = String::from("category,instance,oracle,known_pose_mean,known_pose_std,pose_noise_mean,pose_noise_std,iterations,ms,oracle_chamfer,known_pose_chamfer,pose_noise_chamfer,noise_iterations,noise_ms,from_truth_mean,from_truth_std,pose_noise_placed_mean,pose_noise_placed_std,space_optimum,pose_noise_seen_mean,pose_noise_seen_std\n");
     let shading_json = settings
         .shading
         .map(|s| serde_json::json!({ "light": s.light, "ambient": s.ambient }));
@@ -653,16 +659,17 @@ pub fn write_reports(
     let mut json = Vec::new();
     for r in rows {
         md.push_str(&format!(
-            "| {} | {} | {:.2} | {:.2} | {:.2} +- {:.2} | {:.2} | {:.2} | {:.2} +- {:.2} | {:.2} | {:.2} | {:.2} | {:.2} ({:.2}) | {:.2} / {:.2} / {:.2} | {:.1} / {:.1} | {:.0} / {:.0} |{}\n",
+            "| {} | {} | {:.2} | {:.2} | {:.2} +- {:.2} | {:.2} | {:.2} | {:.2} +- {:.2} | {:.2} | {:.2} | {:.2} | {:.2} ({:.2}) | {:.2} ({:.2}) | {:.2} / {:.2} / {:.2} | {:.1} / {:.1} | {:.0} / {:.0} |{}\n",
             r.category, r.instance, 1e3 * r.oracle, 1e3 * r.space_optimum, 1e3 * r.known_pose.mean, 1e3 * r.known_pose.std, r.known_pose.mean / r.oracle,
             r.known_pose.mean / r.space_optimum,
             1e3 * r.pose_noise.mean, 1e3 * r.pose_noise.std, r.pose_noise.mean / r.oracle, r.pose_noise.mean / r.space_optimum, 1e3 * r.pose_noise_worst,
             1e3 * r.pose_noise_placed.mean, r.pose_noise_placed.mean / r.oracle,
+            1e3 * r.pose_noise_seen.mean, r.pose_noise_seen.mean / r.oracle,
             1e3 * r.oracle_chamfer, 1e3 * r.known_pose_chamfer.mean, 1e3 * r.pose_noise_chamfer.mean, r.iterations, r.noise_iterations, r.ms, r.noise_ms,
             r.from_truth.map_or(String::new(), |f| format!(" {:.2} +- {:.2} | {:.2} |", 1e3 * f.mean, 1e3 * f.std, f.mean / r.oracle))
         ));
         csv.push_str(&format!(
-            "{},{},{:e},{:e},{:e},{:e},{:e},{},{:.3},{:e},{:e},{:e},{},{:.3},{},{},{:e},{:e},{:e}\n",
+            "{},{},{:e},{:e},{:e},{:e},{:e},{},{:.3},{:e},{:e},{:e},{},{:.3},{},{},{:e},{:e},{:e},{:e},{:e}\n",
             r.category,
             r.instance,
             r.oracle,
@@ -684,6 +691,8 @@ pub fn write_reports(
             r.pose_noise_placed.mean,
             r.pose_noise_placed.std,
             r.space_optimum,
+            r.pose_noise_seen.mean,
+            r.pose_noise_seen.std,
         ));
         json.push(serde_json::json!({
             "category": r.category,
@@ -705,6 +714,7 @@ pub fn write_reports(
             "noise_ms": r.noise_ms,
             "from_truth": r.from_truth.as_ref().map(stat),
             "pose_noise_placed": stat(&r.pose_noise_placed),
+            "pose_noise_seen": stat(&r.pose_noise_seen),
             "shading": shading_json,
             "depth": depth_json,
             "code_prior": noisy.code_prior,
