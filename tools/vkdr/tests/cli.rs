@@ -303,6 +303,7 @@ fn bad_input_exits_non_zero_naming_the_problem_and_keeps_existing_files() {
         ),
         case(&eval(&["--trials", "1"]), "--trials"),
         case(&eval(&["--views", "7"]), "--views"),
+        case(&eval(&["--starts", "0"]), "--starts"),
         case(&eval(&["--depth", "--depth-noise", "-1"]), "--depth-noise"),
         case(&eval(&["--dims", "0"]), "--dims"),
         case(&eval(&["--code-prior", "-1"]), "code prior -1"),
