@@ -184,6 +184,9 @@ vec2 gradient_bounds() {
     float g = 0.0;
     vec2 largest = vec2(uintBitsToFloat(work_count[LOSS_MAX]), uintBitsToFloat(work_count[LOSS_MAX + 1u]));
     for (uint view = 0u; view < uint(views.length()); ++view) g = max(g, loss_bound(largest, view));
+    // Every dL/dA is 0: no term is added (an ingredient that is not finite, from a
+    // degenerate triangle, must not make the bound NaN then).
+    if (g == 0.0) return vec2(0.0);
     float colour = uintBitsToFloat(work_count[COLOUR_MAX]);
     float crossing = uintBitsToFloat(work_count[CROSSING_MAX]);
     float shading = uintBitsToFloat(work_count[SHADING_MAX]);

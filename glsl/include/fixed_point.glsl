@@ -7,8 +7,9 @@
 // the largest term's magnitude (found with atomicMax over the float bits, which is
 // order-free too) or a bound on it (the differentiable renderer's backward), and the
 // most terms one sum can take, so that no sum can pass 2^62; the resolution is then
-// 2^-(62 - headroom) of the largest term or bound (about 4e-12 of it with 2^24 terms),
-// far below float32's.
+// 2^-(62 - headroom) of the largest term or of the bound (about 4e-12 of it with 2^24
+// terms), far below float32's even where the bound is a few thousand times the largest
+// term.
 #extension GL_EXT_shader_explicit_arithmetic_types_int64 : require
 #extension GL_EXT_shader_atomic_int64 : require
 
