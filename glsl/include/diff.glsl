@@ -234,7 +234,7 @@ struct Pair {
     bool valid;
     bool lost;            // the silhouette search gave up (see find_crossing)
     bool missed;          // the segment's line misses the front pixel's triangle
-    bool clamped;         // the crossing lies behind f's centre: alpha held at 0
+    bool clamped;         // the crossing lies outside the pair: alpha held at 0 or 1
     ivec2 f;
     ivec2 g;
     Crossing crossing;
@@ -244,12 +244,15 @@ struct Pair {
 
 // The pair's crossing where the crossing edge's function has values ef at f and eb at g.
 // What the crossing's position alpha along the pair decides: a crossing behind the front
-// pixel's centre (see find_crossing) counts as at it, and moves nothing there.
+// pixel's centre (see find_crossing) counts as at it, and moves nothing there; one past
+// the other centre (a front pixel centre just outside its triangle, from the
+// rasterizer's snapping, next to an edge almost along the pair) as at that centre. So
+// weight <= 1/2, which the backward's bound relies on (diff_pass.glsl gradient_bounds).
 void place_alpha(inout Pair pair, float alpha) {
     pair.crossing.alpha = alpha;
-    pair.clamped = alpha < 0.0;
+    pair.clamped = alpha < 0.0 || alpha > 1.0;
     pair.affects_g = alpha > 0.5;
-    pair.weight = abs(max(alpha, 0.0) - 0.5);
+    pair.weight = abs(clamp(alpha, 0.0, 1.0) - 0.5);
 }
 
 void place_crossing(inout Pair pair, float ef, float eb) {

@@ -288,7 +288,9 @@ impl ViewModel<'_> {
             f,
             g,
             affects_g: crossing.alpha > 0.5,
-            weight: (crossing.alpha.max(0.0) - 0.5).abs(),
+            // As place_alpha in glsl/include/diff.glsl: a crossing outside the pair counts
+            // as at the nearer centre.
+            weight: (crossing.alpha.clamp(0.0, 1.0) - 0.5).abs(),
         })
     }
 
