@@ -1247,6 +1247,20 @@ impl Scene {
             .read_range::<u32>(0, WORK_COUNT_WORDS as usize)?[MISSED_STARTS])
     }
 
+    /// How loose the last evaluation's bound on the camera-gradient terms was: the bound
+    /// over the largest term the backward added (at least 1; `None` when no term was
+    /// added). The fixed-point sums resolve 2^-(62 - headroom) of the bound
+    /// (`glsl/include/fixed_point.glsl`), so their resolution relative to the largest term
+    /// is that times this.
+    pub fn bound_slack(&self) -> Result<Option<f64>> {
+        let counts = self
+            .work_count
+            .read_range::<u32>(0, WORK_COUNT_WORDS as usize)?;
+        let bound = f32::from_bits(counts[CAMERA_MAX as usize]) as f64;
+        let seen = f32::from_bits(counts[CAMERA_SEEN as usize]) as f64;
+        Ok((seen > 0.0).then(|| bound / seen))
+    }
+
     /// Pixels listed next to a silhouette (or covered, with attributes) in the last
     /// evaluation, over all views: 0 when nothing of the mesh is rendered.
     pub fn listed_pixels(&self) -> Result<u32> {

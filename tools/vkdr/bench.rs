@@ -252,6 +252,9 @@ fn measure(ctx: &Context, settings: &Settings) -> Result<Vec<Row>> {
 
         let result = scene.read()?;
         let missed = scene.missed_starts()?;
+        let slack = scene.bound_slack()?.map_or("no camera term".into(), |s| {
+            format!("fixed-point bound {s:.1}x the largest camera term")
+        });
         let loss = result.loss[0];
         // The gradients against central differences of re-rendered losses.
         let h = 0.002;
@@ -295,7 +298,7 @@ fn measure(ctx: &Context, settings: &Settings) -> Result<Vec<Row>> {
             passes,
         };
         eprintln!(
-            "      forward {:.3} ms, backward {:.3} ms, plain {:.3} ms, (forward + backward) / plain = {:.2}; wall {:.3} ms vs {:.3} ms; loss {loss:.5}; dL/dtz {:.4} vs {fd_tz:.4} (error {:.2}%), stretch {got_stretch:.4} vs {fd_stretch:.4} (error {:.2}%); {missed} pixel pairs whose line misses the front triangle",
+            "      forward {:.3} ms, backward {:.3} ms, plain {:.3} ms, (forward + backward) / plain = {:.2}; wall {:.3} ms vs {:.3} ms; loss {loss:.5}; dL/dtz {:.4} vs {fd_tz:.4} (error {:.2}%), stretch {got_stretch:.4} vs {fd_stretch:.4} (error {:.2}%); {missed} pixel pairs whose line misses the front triangle; {slack}",
             row.forward_ms,
             row.backward_ms,
             row.plain_ms,
