@@ -37,6 +37,11 @@ pub fn run(args: &Args) -> Result<()> {
     Ok(())
 }
 
+/// From this many source points, a lambda below DENSE_LAMBDA gets a note: on the peers'
+/// noise-free sets 2e4 points wanted hundreds, 1e5 thousands (the README's table).
+const DENSE_POINTS: usize = 10_000;
+const DENSE_LAMBDA: f64 = 100.0;
+
 /// Registers `source` onto `target` and writes deformed.npy, W.npy and log.json into `out`.
 fn register(source: &Path, target: &Path, params: &CpdParams, out: &Path) -> Result<CpdResult> {
     let y = vkdr::io::load_points(source)?;
@@ -49,6 +54,15 @@ fn register(source: &Path, target: &Path, params: &CpdParams, out: &Path) -> Res
         x.len(),
         ctx.info().name
     );
+    if y.len() >= DENSE_POINTS && params.lambda < DENSE_LAMBDA {
+        eprintln!(
+            "note: lambda {} smooths {} points little (the data term grows with the points, \
+             the smoothness term does not); dense sets often want hundreds to thousands \
+             (README, cpd)",
+            params.lambda,
+            y.len()
+        );
+    }
     let result = cpd::register(&ctx, &pipelines, &y, &x, params, &mut |i, s2| {
         eprint!("\r  iteration {i:>4}  sigma^2 {s2:.3e}   ");
     })?;
