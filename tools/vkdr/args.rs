@@ -14,9 +14,9 @@ pub struct CpdArgs {
     /// Kernel width, in units of the source's RMS radius.
     #[arg(long, allow_negative_numbers = true, default_value_t = CpdParams::default().beta)]
     pub beta: f64,
-    /// Smoothness weight. Dense sets want more: the data term grows with the points and
-    /// this does not (on noise-free sets, 2 up to a few thousand points, hundreds at 2e4,
-    /// thousands at 1e5; see the README).
+    /// Smoothness weight. The data term grows with the points and this does not: dense
+    /// noise-free sets wanted more (2 up to a few thousand points, hundreds at 2e4,
+    /// thousands at 1e5), sets with missing points and outliers did not (README, cpd).
     #[arg(long = "lambda", allow_negative_numbers = true, default_value_t = CpdParams::default().lambda)]
     pub lambda: f64,
     /// Outlier weight, in (0, 1).
