@@ -294,11 +294,14 @@ pub struct EvalSettings {
     pub depth: Option<DepthLoss>,
     /// Standard deviation (metres) of Gaussian noise added to every measured depth.
     pub depth_noise: f64,
-    /// Cameras per trial: the first as with one view, the others at the same elevation
-    /// and distance, at seeded azimuths at least [`MIN_VIEW_SEPARATION`] from every other
-    /// view's, their poses relative to the first known. With more than one the z
-    /// translation is optimised with pose noise.
+    /// Cameras per trial: the first as with one view, the others at the same distance and
+    /// elevation (or their own, [`EvalSettings::own_elevations`]), at seeded azimuths at
+    /// least [`MIN_VIEW_SEPARATION`] from every other view's, their poses relative to the
+    /// first known. With more than one the z translation is optimised with pose noise.
     pub views: usize,
+    /// Draw each view after the first its own elevation from [`EvalSettings::elevation`]
+    /// (a head and a wrist camera) instead of sharing the first's.
+    pub own_elevations: bool,
     /// Keep z at its true value even where depth or a second view observe it (as with one
     /// mask, where the distance is given): separates what the observation tells from what
     /// the free distance costs.
@@ -337,6 +340,25 @@ pub fn turned_about(pose: Pose, axis: DVec3, angle: f64) -> Pose {
     }
 }
 
+/// Azimuth and elevation (radians) of each camera of one trial: the first at a random
+/// azimuth and elevation, the others at [`view_offsets`] from it, at its elevation or
+/// (with [`EvalSettings::own_elevations`]) each at its own, drawn after the offsets so that
+/// shared-elevation trials keep their random stream.
+fn trial_cameras(rng: &mut Rng, settings: &EvalSettings) -> Vec<(f64, f64)> {
+    let azimuth = rng.range(0.0, std::f64::consts::TAU);
+    let elevation = rng.range(settings.elevation.0, settings.elevation.1);
+    let offsets = view_offsets(rng, settings.views);
+    let mut cameras = vec![(azimuth, elevation)];
+    for offset in offsets {
+        let own = match settings.own_elevations {
+            true => rng.range(settings.elevation.0, settings.elevation.1),
+            false => elevation,
+        };
+        cameras.push((azimuth + offset, own));
+    }
+    cameras
+}
+
 /// The least azimuth between two views of one trial, radians (60 degrees).
 pub const MIN_VIEW_SEPARATION: f64 = std::f64::consts::PI / 3.0;
 
@@ -358,8 +380,13 @@ impl EvalSettings {
         }
         let views = if self.views > 1 {
             format!(
-                "{} views (azimuths at least 60 degrees apart, relative poses known)",
-                self.views
+                "{} views (azimuths at least 60 degrees apart, {}, relative poses known)",
+                self.views,
+                if self.own_elevations {
+                    "elevations drawn per view"
+                } else {
+                    "a shared elevation"
+                }
             )
         } else {
             "one view".into()
@@ -451,6 +478,7 @@ impl Default for EvalSettings {
             depth: None,
             depth_noise: 0.0,
             views: 1,
+            own_elevations: false,
             fix_z: false,
             starts: 1,
         }
@@ -780,18 +808,17 @@ pub fn evaluate_instance(
     };
     for trial in 0..settings.trials {
         progress(trial, settings.trials);
-        let azimuth = rng.range(0.0, std::f64::consts::TAU);
-        let elevation = rng.range(settings.elevation.0, settings.elevation.1);
+        let cameras = trial_cameras(&mut rng, settings);
+        let (azimuth, elevation) = cameras[0];
         let pose = view_pose_up(settings.up, azimuth, elevation, settings.distance);
         let view = View {
             camera: settings.camera,
             pose,
         };
-        let others: Vec<OtherView> = view_offsets(&mut rng, settings.views)
-            .into_iter()
-            .map(|offset| {
-                let other =
-                    view_pose_up(settings.up, azimuth + offset, elevation, settings.distance);
+        let others: Vec<OtherView> = cameras[1..]
+            .iter()
+            .map(|&(azimuth, elevation)| {
+                let other = view_pose_up(settings.up, azimuth, elevation, settings.distance);
                 OtherView {
                     camera: settings.camera,
                     from_first: pose.inverse().followed_by(&other),
@@ -991,6 +1018,33 @@ mod tests {
 
     /// Every count of views the command line accepts ends, seed after seed, with every two
     /// views at least the separation apart (with five or six, rejection alone could hang).
+    /// Further views share the first's elevation unless told to draw their own, which stay
+    /// in the elevation range, differ from it, and leave the first camera and the azimuths
+    /// as they were.
+    #[test]
+    fn trial_cameras_share_or_draw_elevations() {
+        let settings = EvalSettings {
+            views: 3,
+            ..EvalSettings::default()
+        };
+        let own = EvalSettings {
+            own_elevations: true,
+            ..settings.clone()
+        };
+        let (lo, hi) = settings.elevation;
+        for seed in 0..50 {
+            let shared = trial_cameras(&mut Rng::new(seed), &settings);
+            let drawn = trial_cameras(&mut Rng::new(seed), &own);
+            assert_eq!(shared.len(), 3);
+            assert!(shared.iter().all(|c| c.1 == shared[0].1), "{shared:?}");
+            assert_eq!(drawn[0], shared[0]);
+            for (d, s) in drawn.iter().zip(&shared).skip(1) {
+                assert_eq!(d.0, s.0);
+                assert!((lo..hi).contains(&d.1) && d.1 != shared[0].1, "{drawn:?}");
+            }
+        }
+    }
+
     #[test]
     fn view_offsets_keep_every_pair_apart_for_one_to_six_views() {
         let tau = std::f64::consts::TAU;

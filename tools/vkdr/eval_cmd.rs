@@ -84,6 +84,10 @@ pub struct Args {
     /// every other, their relative poses known, one code and object pose for all.
     #[arg(long, default_value_t = 1)]
     views: usize,
+    /// With --views: draw each further view its own elevation (10 to 60 degrees, as the
+    /// first's) instead of sharing the first's.
+    #[arg(long)]
+    own_elevations: bool,
     /// Keep the distance (z) at its true value with pose noise even with --depth or --views
     /// (as with one mask).
     #[arg(long)]
@@ -146,6 +150,10 @@ pub fn run(args: &Args) -> Result<()> {
         );
     }
     settings.views = args.views;
+    if args.own_elevations && args.views == 1 {
+        bail!("--own-elevations draws the elevations of further views: give --views 2 or more");
+    }
+    settings.own_elevations = args.own_elevations;
     settings.fix_z = args.fix_z;
     if !(1..=8).contains(&args.starts) {
         bail!("--starts must be 1 to 8, not {}", args.starts);
