@@ -226,6 +226,38 @@ pub struct Registration {
     pub on_bound: usize,
 }
 
+/// The turns (radians) of [`turned_starts`]: 0, +`step`, -`step`, +2 `step`, -2 `step`,
+/// ..., `count` of them.
+pub fn start_turns(count: usize, step: f64) -> Vec<f64> {
+    (0..count)
+        .map(|j| {
+            let turns = j.div_ceil(2) as f64 * step;
+            if j % 2 == 1 {
+                turns
+            } else {
+                -turns
+            }
+        })
+        .collect()
+}
+
+/// `count` starting poses for [`Registrar::register_from_starts`]: `pose`, then `pose`
+/// with the object first turned about its own `up` axis (through its origin) by each
+/// further [`start_turns`], so that a start lies on either side of a minimum next to
+/// `pose`'s.
+pub fn turned_starts(pose: Pose, up: DVec3, count: usize, step: f64) -> Vec<Pose> {
+    start_turns(count, step)
+        .into_iter()
+        .map(|angle| {
+            let turn = DMat3::from_axis_angle(up.normalize(), angle);
+            Pose {
+                translation: pose.translation,
+                rotation: glam::DQuat::from_mat3(&(pose.rotation_matrix() * turn)).to_scaled_axis(),
+            }
+        })
+        .collect()
+}
+
 /// The optimisers keep each code coordinate (in their own units, see
 /// `optimizer_coordinates`) within this many units of the mean shape, as
 /// `glsl/optimizer.comp` and `glsl/bfgs.comp` do.
@@ -263,6 +295,46 @@ impl Registrar {
     ) -> Result<Registration> {
         let mut results = self.register_batch(ctx, &[job], params, on_chunk)?;
         Ok(results.remove(0))
+    }
+
+    /// Registers `job` from several starting poses at once (one [`Registrar::register_batch`])
+    /// and keeps the one with the least final loss: what the images prefer, where one start
+    /// may stop in a local minimum of the rotation ([`turned_starts`] makes such starts).
+    /// The result's `milliseconds` is the batch's wall time and its `iterations` count
+    /// every start's. An error without starts.
+    pub fn register_from_starts(
+        &self,
+        ctx: &Context,
+        job: Job,
+        starts: &[Pose],
+        params: &RegisterParams,
+        on_chunk: impl FnMut(usize, f64),
+    ) -> Result<Registration> {
+        if starts.is_empty() {
+            return Err(Error::InvalidInput(
+                "a registration from starts needs at least one start".into(),
+            ));
+        }
+        let jobs: Vec<Job> = starts
+            .iter()
+            .map(|&pose| Job {
+                view: View { pose, ..job.view },
+                ..job
+            })
+            .collect();
+        let runs = self.register_batch(ctx, &jobs, params, on_chunk)?;
+        let milliseconds = runs.iter().map(|r| r.milliseconds).fold(0.0, f64::max);
+        let iterations = runs.iter().map(|r| r.iterations).sum();
+        let final_loss = |r: &Registration| r.losses.last().copied().unwrap_or(f64::INFINITY);
+        let best = runs
+            .into_iter()
+            .min_by(|a, b| final_loss(a).total_cmp(&final_loss(b)))
+            .expect("at least one start");
+        Ok(Registration {
+            milliseconds,
+            iterations,
+            ..best
+        })
     }
 
     /// Runs several independent registrations together: each chunk of iterations of all
@@ -838,4 +910,33 @@ fn read_pose(views: &crate::raster::ViewBuffers) -> Result<Pose> {
         translation: DVec3::new(m[3][0] as f64, m[3][1] as f64, m[3][2] as f64),
         rotation,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The starts alternate sides at growing turns, and a turn about the object's up axis
+    /// keeps the position and the axis and moves a point off the axis by the turn.
+    #[test]
+    fn starts_turn_about_the_up_axis_on_either_side() {
+        let r = 0.25;
+        assert!(start_turns(0, r).is_empty());
+        assert_eq!(start_turns(5, r), vec![0.0, r, -r, 2.0 * r, -2.0 * r]);
+        let pose = Pose::new([0.02, -0.01, 0.6], [0.3, -0.2, 0.1]).unwrap();
+        let up = DVec3::new(0.0, 2.0, 0.0);
+        let starts = turned_starts(pose, up, 3, r);
+        assert_eq!(starts.len(), 3);
+        assert!((starts[0].rotation - pose.rotation).length() < 1e-12);
+        let x = DVec3::X;
+        for (turned, angle) in starts.iter().zip([0.0, r, r]) {
+            assert!((turned.translation - pose.translation).length() < 1e-12);
+            assert!((turned.apply(up) - pose.apply(up)).length() < 1e-12);
+            let moved = (turned.apply(x) - pose.apply(x)).length();
+            assert!((moved - 2.0 * (angle / 2.0).sin()).abs() < 1e-12, "{moved}");
+        }
+        // The second and third turn to either side.
+        let side = |p: &Pose| pose.inverse().followed_by(p).apply(x).z;
+        assert!(side(&starts[1]) * side(&starts[2]) < 0.0);
+    }
 }

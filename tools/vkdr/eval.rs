@@ -24,7 +24,7 @@ use vkdr::gpu::Context;
 use vkdr::loss::Loss;
 use vkdr::mesh::{centroid, Mesh};
 use vkdr::raster::{Outputs, View};
-use vkdr::register::{Job, Optimizer, OtherView, RegisterParams, Registrar, Registration};
+use vkdr::register::{turned_starts, Job, Optimizer, OtherView, RegisterParams, Registrar};
 use vkdr::shape::ShapeSpace;
 
 /// Mean over `a` of the distance to the nearest point of `b`.
@@ -307,37 +307,12 @@ pub struct EvalSettings {
     /// the free distance costs.
     pub fix_z: bool,
     /// Registrations per trial with pose noise: the noisy start and the starts turned
-    /// about the object's up axis by [`start_turns`]; the one with the least final loss
-    /// (what the images tell, not the error) is kept. The starts run as one batch
-    /// (`Registrar::register_batch`); the milliseconds are the batch's wall time and the
-    /// iterations count every start.
+    /// about the object's up axis by multiples of the rotation noise
+    /// ([`vkdr::register::turned_starts`]); the one with the least final loss (what the
+    /// images tell, not the error) is kept. The starts run as one batch
+    /// (`Registrar::register_from_starts`); the milliseconds are the batch's wall time and
+    /// the iterations count every start.
     pub starts: usize,
-}
-
-/// Turns (radians) about the up axis of the starts after the first: +-r, +-2r, ... for
-/// the rotation noise r, so that a start lies on either side of a minimum next to the
-/// noisy start's.
-pub fn start_turns(starts: usize, rotation_noise: f64) -> Vec<f64> {
-    (1..starts)
-        .map(|j| {
-            let step = j.div_ceil(2) as f64 * rotation_noise;
-            if j % 2 == 1 {
-                step
-            } else {
-                -step
-            }
-        })
-        .collect()
-}
-
-/// `pose` with the object first turned by `angle` about its own `axis` (through its
-/// origin).
-pub fn turned_about(pose: Pose, axis: DVec3, angle: f64) -> Pose {
-    let turn = DMat3::from_axis_angle(axis.normalize(), angle);
-    Pose {
-        translation: pose.translation,
-        rotation: glam::DQuat::from_mat3(&(pose.rotation_matrix() * turn)).to_scaled_axis(),
-    }
 }
 
 /// Azimuth and elevation (radians) of each camera of one trial: the first at a random
@@ -890,31 +865,13 @@ pub fn evaluate_instance(
             settings.translation_noise,
             settings.rotation_noise,
         );
-        // Every start in one batch (one submission per chunk of iterations), the least
-        // final loss kept; the batch's wall time and every start's iterations counted.
-        let turns =
-            std::iter::once(0.0).chain(start_turns(settings.starts, settings.rotation_noise));
-        let jobs: Vec<Job> = turns
-            .map(|turn| {
-                job(View {
-                    camera: settings.camera,
-                    pose: turned_about(start, settings.up, turn),
-                })
-            })
-            .collect();
-        let runs = registrar.register_batch(ctx, &jobs, &pose_noise, |_, _| {})?;
-        let milliseconds = runs.iter().map(|r| r.milliseconds).fold(0.0, f64::max);
-        let iterations = runs.iter().map(|r| r.iterations).sum();
-        let final_loss = |r: &Registration| r.losses.last().copied().unwrap_or(f64::INFINITY);
-        let best = runs
-            .into_iter()
-            .min_by(|a, b| final_loss(a).total_cmp(&final_loss(b)))
-            .expect("at least one start");
-        let result = Registration {
-            milliseconds,
-            iterations,
-            ..best
-        };
+        // Every start in one batch, the least final loss kept.
+        let starts = turned_starts(start, settings.up, settings.starts, settings.rotation_noise);
+        let first = job(View {
+            camera: settings.camera,
+            pose: start,
+        });
+        let result = registrar.register_from_starts(ctx, first, &starts, &pose_noise, |_, _| {})?;
         let (rotation_error, translation_error) = pose_error(result.pose, pose);
         let rotation_error_symmetric = if symmetric {
             symmetric_rotation_error(result.pose, pose, settings.up)
@@ -1107,23 +1064,6 @@ mod tests {
         let placed = placed_like(&stretched, &reference);
         assert!((centroid(&placed) - centroid(&reference)).length() < 1e-12);
         assert!(((placed[0] - placed[1]) - (stretched[0] - stretched[1])).length() < 1e-12);
-    }
-
-    /// The starts alternate sides at growing turns, and a turn about the object's up axis
-    /// keeps the position and moves a point off the axis by the turn.
-    #[test]
-    fn starts_turn_about_the_up_axis_on_either_side() {
-        let r = 0.25;
-        assert!(start_turns(1, r).is_empty());
-        assert_eq!(start_turns(5, r), vec![r, -r, 2.0 * r, -2.0 * r]);
-        let pose = Pose::new([0.02, -0.01, 0.6], [0.3, -0.2, 0.1]).unwrap();
-        let up = DVec3::new(0.0, 1.0, 0.0);
-        let turned = turned_about(pose, up, r);
-        assert!((turned.translation - pose.translation).length() < 1e-12);
-        assert!((turned.apply(up) - pose.apply(up)).length() < 1e-12);
-        let x = DVec3::new(1.0, 0.0, 0.0);
-        let moved = (turned.apply(x) - pose.apply(x)).length();
-        assert!((moved - 2.0 * (r / 2.0).sin()).abs() < 1e-12, "{moved}");
     }
 
     /// A shape shifted in its frame with the pose shifted back is seen where the true one

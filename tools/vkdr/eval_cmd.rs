@@ -12,7 +12,7 @@ use vkdr::io::{write_atomically, write_json, write_npy, write_png};
 use vkdr::raster::View;
 use vkdr::register::{Job, RegisterParams, Registrar, Registration};
 use vkdr::shape::ShapeSpace;
-use vkdr::Mesh;
+use vkdr::{Mesh, Pose};
 use vkdr_app::eval::{self, EvalSettings, Row, Trial};
 use vkdr_app::plot::{Plot, PALETTE};
 
@@ -245,12 +245,14 @@ fn shading_pair(observed: &[f32], rendered: &[f32], width: u32, height: u32) -> 
     })
 }
 
-/// Runs one registration (comparing shading and depth too where `params` asks) and writes
-/// its outputs: the pictures of the first view as `overlay_start.png` / `overlay_end.png`
+/// Runs one registration (comparing shading and depth too where `params` asks; from each
+/// of `starts` with more than one, the least final loss kept) and writes its outputs: the
+/// pictures of the first view as `overlay_start.png` / `overlay_end.png`
 /// (`shading_end.png`), those of any further view `v` with a `_view{v}` suffix.
 pub fn register(
     ctx: &Context,
     job: Job,
+    starts: &[Pose],
     params: &RegisterParams,
     out: &Path,
 ) -> Result<Registration> {
@@ -279,14 +281,19 @@ pub fn register(
         )?;
     }
     let total = params.total_iterations();
-    let result = registrar.register(ctx, job, params, |done, loss| {
+    let progress = |done: usize, loss: f64| {
         let filled = (done * 30 / total.max(1)).min(30);
         eprint!(
             "\r  register [{}{}] {done}/{total} loss {loss:.5}",
             "#".repeat(filled),
             ".".repeat(30 - filled)
         );
-    })?;
+    };
+    let result = if starts.len() > 1 {
+        registrar.register_from_starts(ctx, job, starts, params, progress)?
+    } else {
+        registrar.register(ctx, job, params, progress)?
+    };
     eprintln!();
     let mesh = space.canonical.with_points(&result.vertices)?;
     mesh.save_obj(out.join("deformed.obj"))?;
@@ -664,7 +671,7 @@ pub fn write_reports(
         if settings.starts > 1 {
             format!(" Pose noise: {} starts per trial (the noisy start, and it turned about the up axis by {}), the least final loss kept; its iterations and ms count every start.",
                 settings.starts,
-                eval::start_turns(settings.starts, settings.rotation_noise).iter().map(|t| format!("{:+.0} deg", t.to_degrees())).collect::<Vec<_>>().join(", "))
+                vkdr::register::start_turns(settings.starts, settings.rotation_noise)[1..].iter().map(|t| format!("{:+.0} deg", t.to_degrees())).collect::<Vec<_>>().join(", "))
         } else {
             String::new()
         } + if settings.from_truth { " From true pose: pose and shape as with pose noise, but starting at the true pose (no alignment)." } else { "" },

@@ -5,10 +5,12 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context as _, Result};
 
+use glam::DVec3;
+use vkdr::camera::parse_numbers;
 use vkdr::gpu::Context;
 use vkdr::loss;
 use vkdr::raster::{Outputs, View};
-use vkdr::register::{self, Job, OtherView, RegisterParams, Registrar};
+use vkdr::register::{self, turned_starts, Job, OtherView, RegisterParams, Registrar};
 use vkdr::shape::ShapeSpace;
 use vkdr::{Camera, Mesh, Pose};
 use vkdr_app::eval::{self, EvalSettings};
@@ -72,6 +74,14 @@ pub struct Args {
     /// shape from drifting against the pose where the images cannot tell them apart.
     #[arg(long, allow_negative_numbers = true, default_value_t = 0.0)]
     code_prior: f64,
+    /// With --optimize-pose: register from this many starts at once, the initial pose and
+    /// it turned about the object's --up axis by +-15, +-30, ... degrees, and keep the one
+    /// with the least final loss (1 to 8; against a rotation that stops in a local minimum).
+    #[arg(long, default_value_t = 1)]
+    starts: usize,
+    /// The object's up axis for --starts, in its own frame: x,y,z.
+    #[arg(long, default_value = "0,1,0")]
+    up: String,
     #[arg(long)]
     out: PathBuf,
 }
@@ -267,6 +277,16 @@ fn rendered(
 }
 
 pub fn run(args: &Args) -> Result<()> {
+    if !(1..=8).contains(&args.starts) {
+        bail!("--starts must be 1 to 8, not {}", args.starts);
+    }
+    if args.starts > 1 && !args.optimize_pose {
+        bail!("--starts turns the starting pose: give --optimize-pose too");
+    }
+    let up = DVec3::from_array(parse_numbers::<3>(&args.up, "--up")?);
+    if !(up.is_finite() && up.length() > 0.0) {
+        bail!("--up must be a nonzero direction x,y,z, not {}", args.up);
+    }
     let space = ShapeSpace::load(&args.space)?;
     let view = args.view.view()?;
     let depth_loss = args.depth_loss.loss()?;
@@ -311,7 +331,8 @@ pub fn run(args: &Args) -> Result<()> {
         others: &others,
         ..Job::new(&space, &observed.mask, view)
     };
-    let result = eval_cmd::register(&ctx, job, &params, &args.out)?;
+    let starts = turned_starts(view.pose, up, args.starts, settings.rotation_noise);
+    let result = eval_cmd::register(&ctx, job, &starts, &params, &args.out)?;
     println!(
         "{} iterations in {:.1} ms ({:.2} ms per iteration); loss {:.5} -> {:.5}; code {:?}",
         result.iterations,

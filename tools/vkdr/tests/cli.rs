@@ -395,6 +395,11 @@ fn bad_input_exits_non_zero_naming_the_problem_and_keeps_existing_files() {
             &register(&["--views", "views.json"]),
             "views.json: not JSON",
         ),
+        case(&register(&["--starts", "3"]), "give --optimize-pose too"),
+        case(
+            &register(&["--optimize-pose", "--starts", "2", "--up", "0,0,0"]),
+            "--up must be a nonzero direction",
+        ),
         case(
             &register(&["--depth", "--depth-scale", "0"]),
             "depth loss scale",
