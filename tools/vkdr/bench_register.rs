@@ -15,7 +15,7 @@ use vkdr::camera::parse_size;
 use vkdr::diff::{DepthLoss, Shading};
 use vkdr::gpu::Context;
 use vkdr::io::{write_atomically, write_png};
-use vkdr::raster::{Outputs, View};
+use vkdr::raster::View;
 use vkdr::register::{Job, OtherView, PassTimes, Registrar};
 use vkdr::shape::ShapeSpace;
 use vkdr::Camera;
@@ -176,21 +176,12 @@ pub fn run(args: &Args) -> Result<()> {
         .collect();
     let views = vkdr::register::all_views(View { camera, pose }, &others);
     let registrar = Registrar::new(ctx)?;
-    let outputs = if args.depth {
-        Outputs::IdsBaryDepth
-    } else {
-        Outputs::Ids
-    };
-    let g = registrar
-        .renderer()
-        .rasterizer()
-        .render(ctx, &test, &views, outputs)?;
-    let observed: Vec<f32> = g.ids.iter().map(|&id| (id > 0) as u32 as f32).collect();
-    let depth: Option<Vec<f32>> = g.depth.map(|d| d.iter().copied().collect());
     let shading = args.shading.then(Shading::default);
-    let shaded = shading
-        .map(|s| eval::render_shading(ctx, &registrar, &test, &views, s))
-        .transpose()?;
+    let eval::Observation {
+        mask: observed,
+        depth,
+        shaded,
+    } = eval::observe(ctx, &registrar, &test, &views, args.depth, shading)?;
     let jobs: Vec<Job> = (0..args.batch)
         .map(|_| {
             let start = eval::noisy_pose(

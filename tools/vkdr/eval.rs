@@ -687,6 +687,45 @@ pub fn render_mask(
         .collect())
 }
 
+/// What cameras at `views` observe of `mesh`, each image `[view][row][column]`.
+pub struct Observation {
+    /// The mask: 1 where the mesh covers the pixel centre, else 0.
+    pub mask: Vec<f32>,
+    /// Camera-space depth where covered, 0 elsewhere (no measurement), if asked for.
+    pub depth: Option<Vec<f32>>,
+    /// The Lambert shading ([`render_shading`]), if asked for.
+    pub shaded: Option<Vec<f32>>,
+}
+
+/// Renders what cameras at `views` observe of `mesh`: its mask, and its depth and shading
+/// where asked for (the test instance's observation in `eval`, `register --observed-mesh`
+/// and `bench-register`).
+pub fn observe(
+    ctx: &Context,
+    registrar: &Registrar,
+    mesh: &Mesh,
+    views: &[View],
+    depth: bool,
+    shading: Option<Shading>,
+) -> Result<Observation> {
+    let outputs = if depth {
+        Outputs::IdsBaryDepth
+    } else {
+        Outputs::Ids
+    };
+    let g = registrar
+        .renderer()
+        .rasterizer()
+        .render(ctx, mesh, views, outputs)?;
+    Ok(Observation {
+        mask: g.ids.iter().map(|&id| (id > 0) as u32 as f32).collect(),
+        depth: g.depth.map(|d| d.iter().copied().collect()),
+        shaded: shading
+            .map(|s| render_shading(ctx, registrar, mesh, views, s))
+            .transpose()?,
+    })
+}
+
 /// The Lambert shading of `mesh` rendered through `views` (`[view][row][column]`, background
 /// 0, antialiased as the registration renders its own).
 pub fn render_shading(
@@ -801,17 +840,16 @@ pub fn evaluate_instance(
             })
             .collect();
         let views = Job::new(space, &[], view).with_others(&others).views();
-        let outputs = if settings.depth.is_some() {
-            Outputs::IdsBaryDepth
-        } else {
-            Outputs::Ids
-        };
-        let g = registrar
-            .renderer()
-            .rasterizer()
-            .render(ctx, test, &views, outputs)?;
-        let mask: Vec<f32> = g.ids.iter().map(|&id| (id > 0) as u32 as f32).collect();
-        let depth: Option<Vec<f32>> = g.depth.map(|depth| {
+        let observed = observe(
+            ctx,
+            registrar,
+            test,
+            &views,
+            settings.depth.is_some(),
+            settings.shading,
+        )?;
+        let (mask, shaded) = (observed.mask, observed.shaded);
+        let depth: Option<Vec<f32>> = observed.depth.map(|depth| {
             depth
                 .iter()
                 .map(|&z| {
@@ -824,10 +862,6 @@ pub fn evaluate_instance(
                 })
                 .collect()
         });
-        let shaded = settings
-            .shading
-            .map(|shading| render_shading(ctx, registrar, test, &views, shading))
-            .transpose()?;
         let job = |view| Job {
             shaded: shaded.as_deref(),
             depth: depth.as_deref(),

@@ -9,7 +9,7 @@ use glam::DVec3;
 use vkdr::camera::parse_numbers;
 use vkdr::gpu::Context;
 use vkdr::loss;
-use vkdr::raster::{Outputs, View};
+use vkdr::raster::View;
 use vkdr::register::{self, turned_starts, Job, OtherView, RegisterParams, Registrar};
 use vkdr::shape::ShapeSpace;
 use vkdr::{Camera, Mesh, Pose};
@@ -188,16 +188,9 @@ fn read_views(path: &Path, first: &Camera) -> Result<Vec<FurtherView>> {
         .collect()
 }
 
-/// Every view's images, [view][row][column], the first view first.
-struct Observed {
-    mask: Vec<f32>,
-    depth: Option<Vec<f32>>,
-    shaded: Option<Vec<f32>>,
-}
-
 /// The observation from files: the first view's from the flags, the others' from the
 /// views file. A view without a depth image has no measurement anywhere.
-fn from_files(args: &Args, view: View, further: &[FurtherView]) -> Result<Observed> {
+fn from_files(args: &Args, view: View, further: &[FurtherView]) -> Result<eval::Observation> {
     let shading = args.shading.shading()?;
     let (w, h) = (view.camera.width, view.camera.height);
     let first = args.observed.as_deref().expect("clap requires --observed");
@@ -212,7 +205,7 @@ fn from_files(args: &Args, view: View, further: &[FurtherView]) -> Result<Observ
             .map(|f| (f.mask.clone(), f.depth.clone(), f.shading.clone())),
     );
     let with_depth = args.observed_depth.is_some();
-    let mut observed = Observed {
+    let mut observed = eval::Observation {
         mask: Vec::new(),
         depth: with_depth.then(Vec::new),
         shaded: shading.map(|_| Vec::new()),
@@ -251,29 +244,19 @@ fn rendered(
     mesh: &Path,
     truth: View,
     others: &[OtherView],
-) -> Result<Observed> {
+) -> Result<eval::Observation> {
     let registrar = Registrar::new(ctx)?;
     let mesh = Mesh::load_obj(mesh)?;
     let views = register::all_views(truth, others);
-    let outputs = if args.depth {
-        Outputs::IdsBaryDepth
-    } else {
-        Outputs::Ids
-    };
-    let g = registrar
-        .renderer()
-        .rasterizer()
-        .render(ctx, &mesh, &views, outputs)?;
-    let shaded = args
-        .shading
-        .shading()?
-        .map(|s| eval::render_shading(ctx, &registrar, &mesh, &views, s))
-        .transpose()?;
-    Ok(Observed {
-        mask: g.ids.iter().map(|&id| (id > 0) as u32 as f32).collect(),
-        depth: g.depth.map(|d| d.iter().copied().collect()),
-        shaded,
-    })
+    eval::observe(
+        ctx,
+        &registrar,
+        &mesh,
+        &views,
+        args.depth,
+        args.shading.shading()?,
+    )
+    .map_err(Into::into)
 }
 
 pub fn run(args: &Args) -> Result<()> {
