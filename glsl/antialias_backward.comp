@@ -44,7 +44,9 @@ void add_attribute_term(uint at, float g) {
 void add_clip_gradient(ViewData vd, uint view, uint v, vec3 g_clip) {
     vec3 g = camera_gradient(vd, g_clip);
     uint at = 3u * (view * pc.vertex_count + v);
-    touched[v / VERTEX_BLOCK] = 1u;
+    uint block = v / VERTEX_BLOCK;
+    uint bit = 1u << (block % 32u);
+    if ((touched[block / 32u] & bit) == 0u) atomicOr(touched[block / 32u], bit);
     add_camera_term(at, g.x);
     add_camera_term(at + 1u, g.y);
     add_camera_term(at + 2u, g.z);

@@ -35,14 +35,15 @@ layout(set = 0, binding = 17, std430) buffer Boxes { int boxes[]; };  // see bou
 // antialias and its backward read them instead of walking again.
 layout(set = 0, binding = 18, std430) buffer PairsX { uint pairs_x[]; };  // [view][y][x]
 layout(set = 0, binding = 19, std430) buffer PairsY { uint pairs_y[]; };  // [view][y][x]
-// Nonzero for each block of VERTEX_BLOCK vertices that got a camera-gradient term
-// (antialias_backward.comp); pose_gradient.comp visits only those blocks.
+// A bit per block of VERTEX_BLOCK vertices (bit b of word w: block 32 w + b), set where
+// the block got a camera-gradient term (antialias_backward.comp); pose_gradient.comp
+// visits only those blocks.
 layout(set = 0, binding = 20, std430) buffer Touched { uint touched[]; };
 // Each valid pair's crossing parameter alpha beside its record (what antialiasing needs:
 // pair_weight_at), [view][y][x].
 layout(set = 0, binding = 21, std430) buffer AlphasX { float alphas_x[]; };
 layout(set = 0, binding = 22, std430) buffer AlphasY { float alphas_y[]; };
-const uint VERTEX_BLOCK = 64u;
+const uint VERTEX_BLOCK = 8u;  // as in src/diff/mod.rs
 
 // work_count slots after the count and dispatch arguments (LOST_WALKS = 4, MISSED_STARTS
 // = 7 and UNFINISHED = 8 in diff.glsl). The backward adds its terms in one pass, at a

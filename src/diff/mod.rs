@@ -101,9 +101,11 @@ const TERMS_PER_LISTED: u32 = 3;
 /// Triangles a scene can hold: the pair records (`encode_pair` in
 /// `glsl/include/diff.glsl`) keep a triangle number in 28 bits.
 const MAX_TRIANGLES: usize = 1 << 28;
-/// Vertices per flag of the touched-blocks buffer (as `VERTEX_BLOCK` in
-/// `glsl/include/diff_pass.glsl`; one pose-pass workgroup each).
-const VERTEX_BLOCK: u32 = 64;
+/// Vertices per bit of the touched-blocks mask (as `VERTEX_BLOCK` in
+/// `glsl/include/diff_pass.glsl`): the pose pass visits only the blocks whose bit is set,
+/// and small blocks keep a silhouette's few vertices per block from bringing many others
+/// along.
+const VERTEX_BLOCK: u32 = 8;
 /// Workgroups of the pose reduction's partial sums (at most).
 const POSE_GROUPS: u32 = 1024;
 
@@ -334,6 +336,7 @@ struct PoseConstants {
     max_slot: u32,
     seen_slot: u32,
     terms_per_listed: u32,
+    vertex_block: u32,
 }
 const _: () = assert!(shaders::POSE_GRADIENT_COMP.takes::<PoseConstants>());
 
@@ -462,7 +465,7 @@ pub struct Scene {
     grad_object: Buffer,
     grad_pose: Buffer,
     pose_partials: Buffer,
-    /// Per block of [`VERTEX_BLOCK`] vertices, nonzero where the backward added a camera
+    /// A bit per block of [`VERTEX_BLOCK`] vertices, set where the backward added a camera
     /// gradient term to one of them: the pose pass skips the other blocks.
     touched: Buffer,
     pose_groups: u32,
@@ -754,7 +757,7 @@ impl Scene {
             )?,
             touched: device(
                 "touched vertex blocks",
-                (vertices.div_ceil(VERTEX_BLOCK as u64) * 4).max(4),
+                (vertices.div_ceil(VERTEX_BLOCK as u64).div_ceil(32) * 4).max(4),
             )?,
             pose_groups,
             grid_groups,
@@ -976,7 +979,7 @@ impl Scene {
         // The pose pass visits only the vertex blocks the backward touched, or (when the
         // shading and depth passes add to every covered vertex) all of them.
         let shaded = self.lambert.is_some() || self.depth.is_some();
-        rec.fill_buffer(&self.touched, shaded as u32);
+        rec.fill_buffer(&self.touched, if shaded { u32::MAX } else { 0 });
         marks.pass(rec, "clear")?;
         self.record_lambert(renderer, rec, 0);
         self.record_depth(renderer, rec, 0);
@@ -1123,6 +1126,7 @@ impl Scene {
             max_slot: CAMERA_MAX,
             seen_slot: CAMERA_SEEN,
             terms_per_listed: TERMS_PER_LISTED,
+            vertex_block: VERTEX_BLOCK,
         };
         let per_stage = [
             Groups::Count(self.pose_groups, 1, 1),
