@@ -12,10 +12,10 @@
 // projected vertices; a pixel is listed or changed only next to a covered pixel. The box
 // is that bounding box grown by MARGIN pixels (a neighbour, and vertex snapping to the
 // rasterizer's sub-pixel grid). A vertex not in front of the near plane (clipped
-// triangles) or not finite makes the box the whole image. With at least as many vertices
-// as pixels the host skips stage 0 and fills the extremes beyond the image instead
-// (Scene::record_marked): projecting the vertices would cost more than classifying every
-// pixel.
+// triangles) or not finite makes the box the whole image. With at least a third as many
+// vertices as pixels the host skips stage 0 and fills the extremes beyond the image
+// instead (Scene::record_marked): projecting the vertices would cost more than
+// classifying every pixel.
 //   stage 0 (x over vertices, grid stride): the per-view extremes;
 //   stage 1 (one invocation; dispatched with z = views too): the boxes and the dispatch.
 #include "diff_pass.glsl"

@@ -955,9 +955,12 @@ impl Scene {
         );
         let n = self.views.count();
         // Projecting every vertex to find the box costs more than classifying every pixel
-        // once a view has about as many vertices as pixels: then the box is the image.
+        // once a view has a third as many vertices as pixels: then the box is the image.
+        // (lavapipe, 1024 x 1024: a vertex projected 9 ns, a background pixel classified
+        // 3.7 ns; 1e6 vertices, 16% of the image in the box: box 9.5 + 5.4 ms, whole image
+        // 0.6 + 8.5 ms.)
         let (width, height) = (self.views.width(), self.views.height());
-        let whole_image = self.mesh.vertex_count() as u64 >= width as u64 * height as u64;
+        let whole_image = 3 * self.mesh.vertex_count() as u64 >= width as u64 * height as u64;
         let (lo, hi) = if whole_image {
             (-8i32 as u32, width.max(height) + 8)
         } else {
