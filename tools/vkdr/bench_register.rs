@@ -262,6 +262,7 @@ pub fn run(args: &Args) -> Result<()> {
     {
         curve.push(((t + 1) as f64 * per_iteration, error));
     }
+    let seen = surface_error(&truth, &eval::as_seen(&run.vertices, run.pose, pose), triangles);
     let batch_errors: Vec<f64> = batched_results
         .iter()
         .map(|r| surface_error(&truth, &r.vertices, triangles) / oracle)
@@ -285,6 +286,7 @@ pub fn run(args: &Args) -> Result<()> {
          | {batch} registrations batched | {batched:.1} ms ({batch_rate:.2} per s, {speedup:.2}x) |\n\
          | oracle error | {oracle:.2} mm |\n\
          | error at the start (mean shape) / end | {start:.2} / {end:.2} mm ({ratio:.2}x oracle) |\n\
+         | error at the end as seen (at its registered pose, against the test surface at the true one) | {seen:.2} mm ({seen_ratio:.2}x oracle) |\n\
          | batched runs' error / oracle | {batch_errors} |\n",
         category = args.category,
         observed = match shading {
@@ -323,6 +325,8 @@ pub fn run(args: &Args) -> Result<()> {
         start = 1e3 * curve[0].1,
         end = 1e3 * curve.last().map_or(f64::NAN, |c| c.1),
         ratio = curve.last().map_or(f64::NAN, |c| c.1) / oracle,
+        seen = 1e3 * seen,
+        seen_ratio = seen / oracle,
         batch_errors = batch_errors
             .iter()
             .map(|e| format!("{e:.2}"))
@@ -354,6 +358,7 @@ pub fn run(args: &Args) -> Result<()> {
         "sequential_ms": sequential,
         "batched_ms": batched,
         "oracle_m": oracle,
+        "seen_m": seen,
         "curve": curve
             .iter()
             .map(|(t, e)| serde_json::json!({ "ms": t, "error_m": e }))
