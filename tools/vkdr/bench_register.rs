@@ -262,7 +262,11 @@ pub fn run(args: &Args) -> Result<()> {
     {
         curve.push(((t + 1) as f64 * per_iteration, error));
     }
-    let seen = surface_error(&truth, &eval::as_seen(&run.vertices, run.pose, pose), triangles);
+    let seen = surface_error(
+        &truth,
+        &eval::as_seen(&run.vertices, run.pose, pose),
+        triangles,
+    );
     let batch_errors: Vec<f64> = batched_results
         .iter()
         .map(|r| surface_error(&truth, &r.vertices, triangles) / oracle)
