@@ -1007,8 +1007,6 @@ fn hash(s: &str) -> u64 {
 mod tests {
     use super::*;
 
-    /// Every count of views the command line accepts ends, seed after seed, with every two
-    /// views at least the separation apart (with five or six, rejection alone could hang).
     /// Further views share the first's elevation unless told to draw their own, which stay
     /// in the elevation range, differ from it, and leave the first camera and the azimuths
     /// as they were.
@@ -1036,6 +1034,8 @@ mod tests {
         }
     }
 
+    /// Every count of views the command line accepts ends, seed after seed, with every two
+    /// views at least the separation apart (with five or six, rejection alone could hang).
     #[test]
     fn view_offsets_keep_every_pair_apart_for_one_to_six_views() {
         let tau = std::f64::consts::TAU;

@@ -336,7 +336,9 @@ pub fn register(
             "rotation": p.rotation.to_array(),
         }),
     )?;
-    let per = result.milliseconds / result.iterations as f64;
+    // The kept run's iterations (with several starts `iterations` counts them all, and
+    // the milliseconds are the batch's).
+    let per = result.milliseconds / result.losses.len().max(1) as f64;
     let log: Vec<serde_json::Value> = result
         .losses
         .iter()

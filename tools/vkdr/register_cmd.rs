@@ -316,11 +316,21 @@ pub fn run(args: &Args) -> Result<()> {
     };
     let starts = turned_starts(view.pose, up, args.starts, settings.rotation_noise);
     let result = eval_cmd::register(&ctx, job, &starts, &params, &args.out)?;
+    // With several starts, `iterations` counts every start's; the kept run's are its losses.
+    let kept = result.losses.len().max(1);
     println!(
-        "{} iterations in {:.1} ms ({:.2} ms per iteration); loss {:.5} -> {:.5}; code {:?}",
-        result.iterations,
+        "{kept} iterations{} in {:.1} ms ({:.2} ms per iteration); loss {:.5} -> {:.5}; code {:?}",
+        if starts.len() > 1 {
+            format!(
+                " ({} starts together, {} iterations in all)",
+                starts.len(),
+                result.iterations
+            )
+        } else {
+            String::new()
+        },
         result.milliseconds,
-        result.milliseconds / result.iterations as f64,
+        result.milliseconds / kept as f64,
         result.losses.first().copied().unwrap_or(f64::NAN),
         result.losses.last().copied().unwrap_or(f64::NAN),
         result
