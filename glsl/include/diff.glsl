@@ -332,16 +332,23 @@ Pair decode_pair_weight(ivec2 p, ivec2 q, uint record, float alpha) {
     return pair;
 }
 
-Pair decode_pair(ViewData vd, ivec2 p, ivec2 q, bool along_x, uint record) {
+// The pair as the backward needs it: also the crossing edge's triangle and the edge's
+// function at the two pixel centres (what its gradient is taken through). What alpha
+// decides (clamped, which pixel changes, the weight) comes from the forward's `alpha`,
+// not from these values' quotient, so that a compiler's different rounding in this shader
+// cannot turn a pair the forward held clamped (and the backward's bound left out) into one
+// with a gradient.
+Pair decode_pair(ViewData vd, ivec2 p, ivec2 q, uint record, float alpha) {
     Pair pair = decode_sides(p, q, record);
     if (!pair.valid) return pair;
     pair.crossing.lost = false;
     pair.crossing.missed = false;
+    pair.crossing.found = true;
     pair.crossing.triangle = record & PAIR_TRIANGLE;
     pair.crossing.edge = int((record >> 28u) & 3u);
     pair.crossing.tri = load_triangle(vd, pair.crossing.triangle);
-    float ef = walk_edge_function(pair.crossing.tri, pair.crossing.edge, pixel_ndc(pair.f, vd));
-    float eb = walk_edge_function(pair.crossing.tri, pair.crossing.edge, pixel_ndc(pair.g, vd));
-    place_crossing(pair, ef, eb);
+    pair.crossing.ef = walk_edge_function(pair.crossing.tri, pair.crossing.edge, pixel_ndc(pair.f, vd));
+    pair.crossing.eb = walk_edge_function(pair.crossing.tri, pair.crossing.edge, pixel_ndc(pair.g, vd));
+    place_alpha(pair, alpha);
     return pair;
 }

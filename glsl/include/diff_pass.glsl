@@ -106,19 +106,14 @@ bool pair_matters(uint a, uint b) {
 const ivec2 STEPS[4] = ivec2[4](ivec2(1, 0), ivec2(0, 1), ivec2(-1, 0), ivec2(0, -1));
 
 // The pair of pixel p with its neighbour p + STEPS[s] (inside the image, pair_matters),
-// from the record its left / upper pixel holds. What alpha decides (clamped, which pixel
-// changes, the weight) comes from the forward's alpha, not from the edge function
-// evaluated again here, so that a compiler's different rounding in this shader cannot
-// turn a pair the forward held clamped (and the backward's bound left out) into one with a
-// gradient.
+// from the record and the alpha its left / upper pixel holds (decode_pair).
 Pair pair_at(ViewData vd, uint view, ivec2 p, int s) {
     ivec2 q = p + STEPS[s];
     ivec2 first = s < 2 ? p : q;
     uint index = pixel_index(first, view);
     uint record = (s % 2 == 0) ? pairs_x[index] : pairs_y[index];
-    Pair pair = s < 2 ? decode_pair(vd, p, q, s == 0, record) : decode_pair(vd, q, p, s == 2, record);
-    if (pair.valid) place_alpha(pair, (s % 2 == 0) ? alphas_x[index] : alphas_y[index]);
-    return pair;
+    float alpha = (s % 2 == 0) ? alphas_x[index] : alphas_y[index];
+    return s < 2 ? decode_pair(vd, p, q, record, alpha) : decode_pair(vd, q, p, record, alpha);
 }
 
 // The same pair as far as antialiasing needs it (decode_pair_weight: no triangle loaded).
