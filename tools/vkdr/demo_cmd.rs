@@ -127,7 +127,13 @@ pub fn run(args: &Args) -> Result<()> {
             pose: start,
         },
     );
-    let result = eval_cmd::register(&ctx, job, &[], &settings.pose_noise, &register_out)?;
+    let result = eval_cmd::register(
+        &ctx,
+        job,
+        &[job.view.pose],
+        &settings.pose_noise,
+        &register_out,
+    )?;
     println!(
         "4. registered with pose noise in {:.0} ms: error {:.2} mm; pictures {2}/overlay_start.png, {2}/overlay_end.png (observed blue, rendered red)",
         result.milliseconds,

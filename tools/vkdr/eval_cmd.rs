@@ -245,8 +245,8 @@ fn shading_pair(observed: &[f32], rendered: &[f32], width: u32, height: u32) -> 
     })
 }
 
-/// Runs one registration (comparing shading and depth too where `params` asks; from each
-/// of `starts` with more than one, the least final loss kept) and writes its outputs: the
+/// Runs one registration (comparing shading and depth too where `params` asks) from each
+/// of `starts` at once, keeps the least final loss, and writes its outputs: the
 /// pictures of the first view as `overlay_start.png` / `overlay_end.png`
 /// (`shading_end.png`), those of any further view `v` with a `_view{v}` suffix.
 pub fn register(
@@ -289,11 +289,7 @@ pub fn register(
             ".".repeat(30 - filled)
         );
     };
-    let result = if starts.len() > 1 {
-        registrar.register_from_starts(ctx, job, starts, params, progress)?
-    } else {
-        registrar.register(ctx, job, params, progress)?
-    };
+    let result = registrar.register_from_starts(ctx, job, starts, params, progress)?;
     eprintln!();
     let mesh = space.canonical.with_points(&result.vertices)?;
     mesh.save_obj(out.join("deformed.obj"))?;
