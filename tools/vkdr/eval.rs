@@ -24,7 +24,9 @@ use vkdr::gpu::Context;
 use vkdr::loss::Loss;
 use vkdr::mesh::{centroid, Mesh};
 use vkdr::raster::{Outputs, View};
-use vkdr::register::{turned_starts, Job, Optimizer, OtherView, RegisterParams, Registrar};
+use vkdr::register::{
+    turned_starts, Job, Optimizer, OtherView, RegisterParams, Registrar, Registration,
+};
 use vkdr::shape::ShapeSpace;
 
 /// Mean over `a` of the distance to the nearest point of `b`.
@@ -575,6 +577,13 @@ pub struct Trial {
     pub pose_noise: f64,
     pub pose_noise_placed: f64,
     pub pose_noise_seen: f64,
+    /// The final loss of the registration with the pose known and of the one with pose
+    /// noise (the same images and loss; with `--code-prior` the latter's includes the
+    /// prior's term). Below the known pose's, the pose-noise fit explains the images
+    /// better than the best code at the true pose does: the images prefer it, and no
+    /// optimiser would bring it nearer the truth.
+    pub known_pose_loss: f64,
+    pub pose_noise_loss: f64,
     /// The registered pose against the true one with pose noise: rotation (radians) and
     /// translation (metres).
     pub rotation_error: f64,
@@ -754,6 +763,12 @@ pub fn render_shading(
     Ok(scene.evaluate(ctx, registrar.renderer())?.antialiased)
 }
 
+/// The loss a registration ended with (what [`Registrar::register_from_starts`] keeps the
+/// least of); NaN without iterations.
+pub fn final_loss(registration: &Registration) -> f64 {
+    registration.losses.last().copied().unwrap_or(f64::NAN)
+}
+
 /// `vertices` moved so that their centroid is that of `reference` (the same mesh's
 /// vertices). With the x and y translation unknown, one view cannot tell a shape shifted
 /// in its own frame from a shifted pose, and the error counts such a shift in full; the
@@ -871,6 +886,7 @@ pub fn evaluate_instance(
 
         let result = registrar.register(ctx, job(view), &known_pose, |_, _| {})?;
         let known_error = error(&result.vertices);
+        let known_pose_loss = final_loss(&result);
         let known_on_bound = result.on_bound;
         known_ch.push(chamfer(&test_vertices, &result.vertices));
         iterations.push(result.iterations as f64);
@@ -921,6 +937,8 @@ pub fn evaluate_instance(
             pose_noise: error(&result.vertices),
             pose_noise_placed: error(&placed_like(&result.vertices, &oracle_vertices)),
             pose_noise_seen: error(&as_seen(&result.vertices, result.pose, pose)),
+            known_pose_loss,
+            pose_noise_loss: final_loss(&result),
             rotation_error,
             rotation_error_symmetric,
             translation_error,
