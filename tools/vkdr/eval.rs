@@ -544,6 +544,10 @@ pub struct Row {
     /// The pose-noise error of each registered shape where the registration put it: moved
     /// by its registered pose and back by the true one (see `as_seen`).
     pub pose_noise_seen: Stat,
+    /// The oracle's error both ways and the pose-noise error as seen both ways (the mean
+    /// of test to shape and shape to test, [`reverse_error`]).
+    pub oracle_both_ways: f64,
+    pub pose_noise_seen_both_ways: Stat,
     /// With `EvalSettings::from_truth`: pose and shape optimised from the true pose.
     pub from_truth: Option<Stat>,
     /// Mean iterations and milliseconds of a registration with the pose known...
@@ -577,6 +581,9 @@ pub struct Trial {
     pub pose_noise: f64,
     pub pose_noise_placed: f64,
     pub pose_noise_seen: f64,
+    /// The same as seen, the mean of the error both ways (test to shape and shape to test,
+    /// [`reverse_error`]).
+    pub pose_noise_seen_both_ways: f64,
     /// The final loss of the registration with the pose known and of the one with pose
     /// noise (the same images and loss; with `--code-prior` the latter's includes the
     /// prior's term). Below the known pose's, the pose-noise fit explains the images
@@ -763,6 +770,23 @@ pub fn render_shading(
     Ok(scene.evaluate(ctx, registrar.renderer())?.antialiased)
 }
 
+/// The mean distance from `SAMPLE_POINTS` points sampled uniformly on the surface of
+/// `vertices` (over `triangles`) to the surface of `test`: the direction the reported error
+/// does not look in, which sees parts the registered shape has and the test instance has
+/// not (a registered shape shorter than the truth is seen from the test's side, one longer
+/// from this side).
+pub fn reverse_error(
+    vertices: &[DVec3],
+    triangles: &[[u32; 3]],
+    test: &Mesh,
+    seed: u64,
+) -> Result<f64> {
+    let positions = vertices.iter().map(|v| v.as_vec3().to_array()).collect();
+    let shape = Mesh::new(positions, triangles.to_vec())?;
+    let points = surface_sample(&shape, SAMPLE_POINTS, seed);
+    Ok(surface_error(&points, &test.points(), test.triangles()))
+}
+
 /// The loss a registration ended with (what [`Registrar::register_from_starts`] keeps the
 /// least of); NaN without iterations.
 pub fn final_loss(registration: &Registration) -> f64 {
@@ -810,6 +834,11 @@ pub fn evaluate_instance(
     let oracle_code = space.oracle_code(ctx, &test_vertices, &settings.cpd)?;
     let oracle_vertices = space.vertices(&oracle_code)?;
     let error = |vertices: &[DVec3]| surface_error(&truth, vertices, space.canonical.triangles());
+    // The mean of the error both ways, test to shape and shape to test.
+    let both_ways = |vertices: &[DVec3]| -> Result<f64> {
+        let reverse = reverse_error(vertices, space.canonical.triangles(), test, hash(name))?;
+        Ok(0.5 * (error(vertices) + reverse))
+    };
     let mut rng = Rng::new(settings.seed ^ hash(name));
     let (mut known_ch, mut noisy_ch) = (vec![], vec![]);
     let mut trials: Vec<Trial> = Vec::new();
@@ -937,6 +966,7 @@ pub fn evaluate_instance(
             pose_noise: error(&result.vertices),
             pose_noise_placed: error(&placed_like(&result.vertices, &oracle_vertices)),
             pose_noise_seen: error(&as_seen(&result.vertices, result.pose, pose)),
+            pose_noise_seen_both_ways: both_ways(&as_seen(&result.vertices, result.pose, pose))?,
             known_pose_loss,
             pose_noise_loss: final_loss(&result),
             rotation_error,
@@ -969,6 +999,8 @@ pub fn evaluate_instance(
         pose_noise_worst: trials.iter().map(|t| t.pose_noise).fold(0.0, f64::max),
         pose_noise_placed: stat(|t| t.pose_noise_placed),
         pose_noise_seen: stat(|t| t.pose_noise_seen),
+        oracle_both_ways: both_ways(&oracle_vertices)?,
+        pose_noise_seen_both_ways: stat(|t| t.pose_noise_seen_both_ways),
         pose_noise: stat(|t| t.pose_noise),
         pose_noise_chamfer: Stat::of(&noisy_ch),
         from_truth: settings.from_truth.then(|| Stat::of(&from_truth)),
@@ -1134,6 +1166,28 @@ mod tests {
         let off = Pose::at([0.0, 0.0, 0.004]).followed_by(&pose);
         let seen = error(&as_seen(&mesh.points(), off, pose));
         assert!(seen > 1e-4 && seen <= 0.004 + 1e-9, "{seen}");
+    }
+
+    /// The reverse error sees what the test instance lacks: a shape stretched to twice the
+    /// test's height is near the test surface from the test's side but far from it from
+    /// its own; the same shape as the test is near both ways.
+    #[test]
+    fn reverse_error_sees_parts_the_test_lacks() {
+        let test = Mesh::bottle(16);
+        let truth = surface_sample(&test, 400, 7);
+        let triangles = test.triangles();
+        let same = test.points();
+        assert!(reverse_error(&same, triangles, &test, 3).unwrap() < 1e-9);
+        let low = same.iter().map(|v| v.y).fold(f64::INFINITY, f64::min);
+        let taller: Vec<DVec3> = same
+            .iter()
+            .map(|&v| DVec3::new(v.x, low + 2.0 * (v.y - low), v.z))
+            .collect();
+        let height = same.iter().map(|v| v.y).fold(f64::NEG_INFINITY, f64::max) - low;
+        let forward = surface_error(&truth, &taller, triangles);
+        let reverse = reverse_error(&taller, triangles, &test, 3).unwrap();
+        assert!(reverse > 0.1 * height, "{reverse} of {height}");
+        assert!(reverse > 3.0 * forward, "{reverse} against {forward}");
     }
 
     /// Looking down from elevation e, the up axis lies 90 deg - e from the line of sight; at

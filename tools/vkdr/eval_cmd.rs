@@ -521,7 +521,7 @@ fn category_table(rows: &[Row]) -> String {
     let mut md = String::from(
         "\nPer category (means over its test instances; ratio = mean error / mean oracle error; \
          / optimum = mean error / mean space optimum):\n\n\
-         | category | oracle | space optimum | known pose | ratio | / optimum | pose noise | ratio | / optimum | worst noise trial | noise, placed (ratio) | noise, as seen (ratio) |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+         | category | oracle | space optimum | known pose | ratio | / optimum | pose noise | ratio | / optimum | worst noise trial | noise, placed (ratio) | noise, as seen (ratio) | as seen, both ways (ratio) |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for category in categories(rows) {
         let of: Vec<&Row> = rows.iter().filter(|r| r.category == category).collect();
@@ -532,8 +532,10 @@ fn category_table(rows: &[Row]) -> String {
         let worst = of.iter().map(|r| r.pose_noise_worst).fold(0.0, f64::max);
         let placed = mean(&|r| r.pose_noise_placed.mean);
         let seen = mean(&|r| r.pose_noise_seen.mean);
+        let both_ways = mean(&|r| r.pose_noise_seen_both_ways.mean);
+        let oracle_both_ways = mean(&|r| r.oracle_both_ways);
         md.push_str(&format!(
-            "| {category} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} ({:.2}) | {:.2} ({:.2}) |\n",
+            "| {category} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} ({:.2}) | {:.2} ({:.2}) | {:.2} ({:.2}) |\n",
             1e3 * oracle,
             1e3 * optimum,
             1e3 * known,
@@ -546,7 +548,9 @@ fn category_table(rows: &[Row]) -> String {
             1e3 * placed,
             placed / oracle,
             1e3 * seen,
-            seen / oracle
+            seen / oracle,
+            1e3 * both_ways,
+            both_ways / oracle_both_ways
         ));
     }
     md.push_str(&view_table(rows));
@@ -651,12 +655,12 @@ fn view_table(rows: &[Row]) -> String {
 /// One line per trial: the view, the errors, and the pose error with pose noise.
 fn trials_csv(rows: &[Row]) -> String {
     let mut csv = String::from(
-        "category,instance,trial,azimuth_deg,elevation_deg,long_axis_angle_deg,short_axis_angle_deg,known_pose,pose_noise,pose_noise_placed,pose_noise_seen,rotation_error_deg,rotation_error_symmetric_deg,translation_error,known_pose_on_bound,pose_noise_on_bound,known_pose_loss,pose_noise_loss\n",
+        "category,instance,trial,azimuth_deg,elevation_deg,long_axis_angle_deg,short_axis_angle_deg,known_pose,pose_noise,pose_noise_placed,pose_noise_seen,rotation_error_deg,rotation_error_symmetric_deg,translation_error,known_pose_on_bound,pose_noise_on_bound,known_pose_loss,pose_noise_loss,pose_noise_seen_both_ways\n",
     );
     for r in rows {
         for (i, t) in r.trials.iter().enumerate() {
             csv.push_str(&format!(
-                "{},{},{i},{:.2},{:.2},{:.2},{:.2},{:e},{:e},{:e},{:e},{:.3},{:.3},{:e},{},{},{:e},{:e}\n",
+                "{},{},{i},{:.2},{:.2},{:.2},{:.2},{:e},{:e},{:e},{:e},{:.3},{:.3},{:e},{},{},{:e},{:e},{:e}\n",
                 r.category,
                 r.instance,
                 t.azimuth.to_degrees(),
@@ -674,6 +678,7 @@ fn trials_csv(rows: &[Row]) -> String {
                 t.pose_noise_on_bound,
                 t.known_pose_loss,
                 t.pose_noise_loss,
+                t.pose_noise_seen_both_ways,
             ));
         }
     }
@@ -699,7 +704,9 @@ pub fn write_reports(
          placed: the pose-noise error after moving each registered shape so that its vertex centroid is the oracle fit's \
          (one view cannot tell a shape shifted in its frame from a shifted pose); \
          as seen: the pose-noise error of each registered shape at its registered pose against the test surface at the true pose \
-         (the distance in the camera frame, what a robot acting on the registration meets; the oracle's is the same in either frame). \
+         (the distance in the camera frame, what a robot acting on the registration meets; the oracle's is the same in either frame); \
+         as seen, both ways: the mean of that error and the one from points sampled on the registered surface to the test surface \
+         (which also sees parts the registration has and the test instance has not), its ratio to the oracle's error both ways. \
          Registration: known pose, {} for {} iterations ({} loss); pose noise, the pose aligned alone for {} iterations ({} loss), \
          then pose and shape by {} for {} ({} loss).{}{}\n\n\
          | category | instance | oracle | space optimum | known pose | ratio | / opt. | pose noise | ratio | / opt. | worst noise trial | noise, placed | noise, as seen | chamfer oracle / known / noise | iterations known / noise | ms known / noise |{}\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|{}\n",
@@ -729,7 +736,7 @@ pub fn write_reports(
         if settings.from_truth { " from true pose | ratio |" } else { "" },
         if settings.from_truth { "---|---|" } else { "" },
     );
-    let mut csv = String::from("category,instance,oracle,known_pose_mean,known_pose_std,pose_noise_mean,pose_noise_std,iterations,ms,oracle_chamfer,known_pose_chamfer,pose_noise_chamfer,noise_iterations,noise_ms,from_truth_mean,from_truth_std,pose_noise_placed_mean,pose_noise_placed_std,space_optimum,pose_noise_seen_mean,pose_noise_seen_std\n");
+    let mut csv = String::from("category,instance,oracle,known_pose_mean,known_pose_std,pose_noise_mean,pose_noise_std,iterations,ms,oracle_chamfer,known_pose_chamfer,pose_noise_chamfer,noise_iterations,noise_ms,from_truth_mean,from_truth_std,pose_noise_placed_mean,pose_noise_placed_std,space_optimum,pose_noise_seen_mean,pose_noise_seen_std,oracle_both_ways,pose_noise_seen_both_ways_mean,pose_noise_seen_both_ways_std\n");
     let shading_json = settings
         .shading
         .map(|s| serde_json::json!({ "light": s.light, "ambient": s.ambient }));
@@ -750,7 +757,7 @@ pub fn write_reports(
             r.from_truth.map_or(String::new(), |f| format!(" {:.2} +- {:.2} | {:.2} |", 1e3 * f.mean, 1e3 * f.std, f.mean / r.oracle))
         ));
         csv.push_str(&format!(
-            "{},{},{:e},{:e},{:e},{:e},{:e},{},{:.3},{:e},{:e},{:e},{},{:.3},{},{},{:e},{:e},{:e},{:e},{:e}\n",
+            "{},{},{:e},{:e},{:e},{:e},{:e},{},{:.3},{:e},{:e},{:e},{},{:.3},{},{},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e}\n",
             r.category,
             r.instance,
             r.oracle,
@@ -774,6 +781,9 @@ pub fn write_reports(
             r.space_optimum,
             r.pose_noise_seen.mean,
             r.pose_noise_seen.std,
+            r.oracle_both_ways,
+            r.pose_noise_seen_both_ways.mean,
+            r.pose_noise_seen_both_ways.std,
         ));
         json.push(serde_json::json!({
             "category": r.category,
@@ -796,6 +806,8 @@ pub fn write_reports(
             "from_truth": r.from_truth.as_ref().map(stat),
             "pose_noise_placed": stat(&r.pose_noise_placed),
             "pose_noise_seen": stat(&r.pose_noise_seen),
+            "oracle_both_ways": r.oracle_both_ways,
+            "pose_noise_seen_both_ways": stat(&r.pose_noise_seen_both_ways),
             // Trials whose pose-noise fit ended with a lower loss than the known-pose fit.
             "pose_noise_lower_loss": r.trials.iter().filter(|t| images_prefer_noise_fit(t)).count(),
             "shading": shading_json,
