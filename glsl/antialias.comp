@@ -14,6 +14,10 @@
 
 layout(local_size_x = 64) in;
 
+// The stage, a specialization constant (one pipeline per stage): CPU drivers run both sides
+// of every branch, so a stage chosen at run time would pay for the other's code too.
+layout(constant_id = 0) const uint STAGE = 0u;
+
 // This invocation's maxima of the bound's ingredients, added once per subgroup at the end.
 float largest_crossing = 0.0;
 float largest_colour = 0.0;
@@ -71,7 +75,7 @@ void main() {
         uint index = work[i];
         uint view = view_of(index);
         ivec2 p = pixel_of(index);
-        if (pc.stage == 0u) {
+        if (STAGE == 0u) {
             pairs_x[index] = pair_record(view, p, size, 0, alphas_x[index]);
             pairs_y[index] = pair_record(view, p, size, 1, alphas_y[index]);
             continue;
@@ -87,7 +91,7 @@ void main() {
     // A driver that ended the loop early (lavapipe's loop limit) is reported, not trusted.
     uint expected = grid_items(gl_GlobalInvocationID.x, stride, count);
     if (done < expected) atomicAdd(work_count[UNFINISHED], expected - done);
-    if (pc.stage == 0u) {
+    if (STAGE == 0u) {
         add_maximum(CROSSING_MAX, largest_crossing);
     } else {
         add_maximum(COLOUR_MAX, largest_colour);

@@ -12,6 +12,9 @@
 
 layout(local_size_x = 8, local_size_y = 8) in;
 
+// The stage, a specialization constant (one pipeline per stage, as in antialias.comp).
+layout(constant_id = 0) const uint STAGE = 0u;
+
 void background_terms() {
     uint view = gl_WorkGroupID.z;
     uint pixels = pc.width * pc.height;
@@ -34,7 +37,7 @@ void background_terms() {
 const int ROWS = 16;
 
 void main() {
-    if (pc.stage == 1u) {
+    if (STAGE == 1u) {
         background_terms();
         return;
     }

@@ -365,8 +365,13 @@ fn stats_shift(desc: &SceneDesc, width: u32, height: u32) -> i32 {
 /// The pipelines of the differentiable renderer (create once, use for many scenes).
 pub struct DiffRenderer {
     rasterizer: Rasterizer,
+    /// `glsl/classify.comp` stage 0 (the box's pixels, every evaluation) and stage 1 (the
+    /// background terms, once per observation).
     classify: ComputePipeline,
+    background: ComputePipeline,
     work_args: ComputePipeline,
+    /// `glsl/antialias.comp` stage 0 (the pairs) and stage 1 (the antialiased image).
+    pairs: ComputePipeline,
     antialias: ComputePipeline,
     backward: ComputePipeline,
     finalize: ComputePipeline,
@@ -385,11 +390,15 @@ impl DiffRenderer {
     /// Builds the differentiable renderer's pipelines and its rasterizer.
     pub fn new(ctx: &Context) -> Result<Self> {
         let pipeline = |shader| ComputePipeline::new(ctx, shader);
+        // A shader's stages as pipelines of their own (a specialization constant).
+        let stage = |shader, stage| ComputePipeline::specialized(ctx, shader, &[stage]);
         Ok(Self {
             rasterizer: Rasterizer::new(ctx)?,
-            classify: pipeline(&shaders::CLASSIFY_COMP)?,
+            classify: stage(&shaders::CLASSIFY_COMP, 0)?,
+            background: stage(&shaders::CLASSIFY_COMP, 1)?,
             work_args: pipeline(&shaders::WORK_ARGS_COMP)?,
-            antialias: pipeline(&shaders::ANTIALIAS_COMP)?,
+            pairs: stage(&shaders::ANTIALIAS_COMP, 0)?,
+            antialias: stage(&shaders::ANTIALIAS_COMP, 1)?,
             backward: pipeline(&shaders::ANTIALIAS_BACKWARD_COMP)?,
             finalize: pipeline(&shaders::LOSS_FINALIZE_COMP)?,
             pose: pipeline(&shaders::POSE_GRADIENT_COMP)?,
@@ -804,7 +813,7 @@ impl Scene {
         rec.fill_buffer(&self.stats_fixed, 0);
         rec.memory_barrier();
         rec.run_compute(
-            &renderer.classify,
+            &renderer.background,
             &self.pass_bindings(),
             &self.pass_constants(1),
             Groups::Count(self.grid(w * h), 1, n),
@@ -1037,11 +1046,10 @@ impl Scene {
         marks.pass(rec, "work arguments")?;
 
         // The pairs (one walk each), then the antialiased image and its loss.
-        for stage in 0..2 {
-            let constants = PassConstants { stage, ..constants };
-            rec.run_compute(&renderer.antialias, &bindings, &constants, work);
+        for (pipeline, name) in [(&renderer.pairs, "pairs"), (&renderer.antialias, "antialias")] {
+            rec.run_compute(pipeline, &bindings, &constants, work);
             rec.memory_barrier();
-            marks.pass(rec, ["pairs", "antialias"][stage as usize])?;
+            marks.pass(rec, name)?;
         }
 
         rec.run_compute(

@@ -200,16 +200,37 @@ impl ComputePipeline {
     /// size are the module's own. Fails with [`Error::Limit`] when the layout exceeds the
     /// device's limits.
     pub fn new(ctx: &Context, shader: &Shader) -> Result<Self> {
+        Self::specialized(ctx, shader, &[])
+    }
+
+    /// The same with the shader's specialization constants `constant_id = i` set to
+    /// `constants[i]` (32-bit each, as `uint`): the driver compiles the pipeline for those
+    /// values, so a branch on one costs nothing at run time (a CPU driver otherwise runs
+    /// both sides of every branch, masked).
+    pub fn specialized(ctx: &Context, shader: &Shader, constants: &[u32]) -> Result<Self> {
         let stages = vk::ShaderStageFlags::COMPUTE;
         let (bindings, push_constant_bytes) = (shader.bindings, shader.push_constant_bytes);
         let (set_layout, layout) =
             PipelineCommon::layouts(ctx, bindings, push_constant_bytes, stages)?;
         let spirv = super::spirv(shader.spirv)?;
         let module = shader_module(ctx, &spirv)?;
-        let stage = vk::PipelineShaderStageCreateInfo::default()
+        let entries: Vec<vk::SpecializationMapEntry> = (0..constants.len() as u32)
+            .map(|i| vk::SpecializationMapEntry {
+                constant_id: i,
+                offset: 4 * i,
+                size: 4,
+            })
+            .collect();
+        let specialization = vk::SpecializationInfo::default()
+            .map_entries(&entries)
+            .data(bytemuck::cast_slice(constants));
+        let mut stage = vk::PipelineShaderStageCreateInfo::default()
             .stage(stages)
             .module(module)
             .name(c"main");
+        if !constants.is_empty() {
+            stage = stage.specialization_info(&specialization);
+        }
         let info = vk::ComputePipelineCreateInfo::default()
             .stage(stage)
             .layout(layout);
