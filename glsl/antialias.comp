@@ -41,11 +41,11 @@ uint pair_record(uint view, ivec2 p, ivec2 size, int s, out float alpha) {
 vec4 antialiased_value(uint view, ivec2 p, ivec2 size, uint id) {
     // Only interpolation needs the camera (colour_at); coverage is 0 or 1.
     ViewData vd;
-    if (pc.channels > 0u) vd = views[view];
+    if (CHANNELS > 0u) vd = views[view];
     vec4 c = colour_at(vd, view, p, id);
     vec4 own = abs(blended(c));
     largest_colour = max(largest_colour, own.x + own.y + own.z + own.w);
-    if (pc.channels > 0u && id != 0u) {
+    if (CHANNELS > 0u && id != 0u) {
         vec2 shading = shading_magnitudes(vd, view, p, id);
         largest_shading = max(largest_shading, shading.x);
         largest_barycentric = max(largest_barycentric, shading.y);

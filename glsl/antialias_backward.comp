@@ -73,7 +73,7 @@ void handle_pixel(uint index) {
     ivec2 p = pixel_of(index);
     const ivec2 steps[4] = STEPS;
     uint id = ids[index];
-    bool interpolated = pc.channels > 0u && id != 0u;
+    bool interpolated = CHANNELS > 0u && id != 0u;
     bool any_pair = false;
     for (int s = 0; s < 4; ++s) {
         ivec2 q = clamp(p + steps[s], ivec2(0), size - 1);
@@ -105,7 +105,7 @@ void handle_pixel(uint index) {
     vec3 b = e / sum;
     vec3 g_b = vec3(0.0);
     for (int k = 0; k < 3; ++k) {
-        for (uint ch = 0u; ch < pc.channels; ++ch) {
+        for (uint ch = 0u; ch < CHANNELS; ++ch) {
             add_attribute_term(attribute_index(view, tri.v[k], ch), b[k] * g_colour[ch]);
             g_b[k] += g_colour[ch] * attributes[attribute_index(view, tri.v[k], ch)];
         }

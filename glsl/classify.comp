@@ -63,7 +63,7 @@ void main() {
         uint right = top.x + 1 < size.x ? ids[index + 1u] : id;
         bool any_pair = pair_matters(id, right) || pair_matters(id, left) || pair_matters(id, down)
             || pair_matters(id, up);
-        if (any_pair || (pc.channels > 0u && id != 0u)) {
+        if (any_pair || (CHANNELS > 0u && id != 0u)) {
             listed |= 1u << uint(r);
         } else if (id != 0u) {
             // Covered, against a mask: one channel, no interpolation.

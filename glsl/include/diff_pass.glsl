@@ -72,18 +72,28 @@ const uint TERMS_PER_LISTED = 3u;
 // loss_finalize.comp computes the loss from those sums.
 
 layout(push_constant, std430) uniform Constants {
-    uint channels;  // 0: coverage, else interpolated attributes per vertex
-    uint loss;
+    uint channels;  // not read: CHANNELS below
+    uint loss;      // not read: LOSS below
     uint vertex_count;
     uint width;
     uint height;
     int stats_shift;
-    uint stage;  // antialias.comp: 0 finds the pairs, 1 antialiases
-    uint depth;     // 1: the last channel is camera-space depth (see depth_term)
-    uint coverage;  // 1: channel 0 is coverage, a constant attribute 1 (mask with depth)
+    uint stage;     // bounds.comp's stage (antialias.comp and classify.comp: STAGE)
+    uint depth;     // not read: DEPTH below
+    uint coverage;  // not read: COVERAGE below
     float depth_scale;   // metres: residuals up to it cost quadratically (Huber)
     float depth_weight;
 } pc;
+
+// What the scene compares, as specialization constants (ids 1 to 4; a pipeline per
+// combination, `PassVariant` in src/diff/mod.rs), not push constants: a CPU driver runs
+// both sides of every branch, so a branch on a push constant would make every pixel pay
+// for every loss and channel layout. The push constants' fields of the same names are
+// kept for the layout and not read.
+layout(constant_id = 1) const uint LOSS = 0u;      // LOSS_MSE, LOSS_IOU, LOSS_DISTANCE
+layout(constant_id = 2) const uint CHANNELS = 0u;  // 0: coverage, else interpolated attributes per vertex
+layout(constant_id = 3) const uint DEPTH = 0u;     // 1: the last channel is camera-space depth
+layout(constant_id = 4) const uint COVERAGE = 0u;  // 1: channel 0 is coverage (mask with depth)
 
 #include "diff.glsl"
 #include "shade.glsl"
@@ -99,7 +109,7 @@ void store_antialiased(uint index, vec4 a) {
 // Whether the pair of pixels showing ids a and b can change the image: with coverage only
 // where one is background (both colours are 1 otherwise, so antialiasing moves nothing).
 bool pair_matters(uint a, uint b) {
-    bool interpolated = pc.channels > 0u && pc.coverage == 0u;
+    bool interpolated = CHANNELS > 0u && COVERAGE == 0u;
     return a != b && (interpolated || (a == 0u) != (b == 0u));
 }
 
@@ -210,7 +220,7 @@ vec2 shading_magnitudes(ViewData vd, uint view, ivec2 p, uint id) {
     vec3 b = abs(e / sum);
     vec3 g_b = vec3(0.0);
     for (int k = 0; k < 3; ++k) {
-        for (uint ch = 0u; ch < pc.channels; ++ch) g_b[k] += abs(attributes[attribute_index(view, tri.v[k], ch)]);
+        for (uint ch = 0u; ch < CHANNELS; ++ch) g_b[k] += abs(attributes[attribute_index(view, tri.v[k], ch)]);
     }
     vec3 g_e = (g_b + dot(b, g_b)) / abs(sum);
     vec3 g_clip[3] = vec3[3](vec3(0.0), vec3(0.0), vec3(0.0));

@@ -5,34 +5,34 @@
 // loss_magnitudes and loss_bound.
 //
 // The including shader declares, before the include: the buffers observed[],
-// antialiased[], distance_field[], stats[] and ids[], and the push constants pc.loss,
-// pc.channels, pc.depth, pc.depth_scale, pc.depth_weight, pc.width, pc.height; and
-// image_channels() (shade.glsl).
+// antialiased[], distance_field[], stats[] and ids[], the specialization constants LOSS,
+// CHANNELS and DEPTH, the push constants pc.depth_scale, pc.depth_weight, pc.width,
+// pc.height; and image_channels() (shade.glsl).
 #include "loss_codes.glsl"
 
 // As `MAX_DEPTH_RESIDUAL` in src/diff/mod.rs (metres).
 const float MAX_DEPTH_RESIDUAL = 1000.0;
 
-// Depth (pc.depth = 1) is the last channel: the interpolated camera-space z of the front
+// Depth (DEPTH = 1) is the last channel: the interpolated camera-space z of the front
 // surface at the pixel centre, compared only where the pixel is covered and the
 // observation measured depth (observed > 0). It is not antialiased: the silhouette's
 // gradient comes from the mask (or shading) channel, which is; so depth is a smooth
 // function of the vertices and pose within each visibility piece, and `blended` removes
 // it from every antialiasing term and its backward.
 vec4 blended(vec4 v) {
-    if (pc.depth != 0u) v[pc.channels - 1u] = 0.0;
+    if (DEPTH != 0u) v[CHANNELS - 1u] = 0.0;
     return v;
 }
 
 // The channels compared by mse (all but depth).
-uint mse_channels() { return max(pc.channels, 1u) - pc.depth; }
+uint mse_channels() { return max(CHANNELS, 1u) - DEPTH; }
 
 // Whether pixel `index` compares depth; `residual` is rendered - observed there.
 bool depth_compared(uint index, vec4 a, out float residual) {
     residual = 0.0;
-    if (pc.depth == 0u || ids[index] == 0u) return false;
-    uint ch = pc.channels - 1u;
-    float o = observed[index * pc.channels + ch];
+    if (DEPTH == 0u || ids[index] == 0u) return false;
+    uint ch = CHANNELS - 1u;
+    float o = observed[index * CHANNELS + ch];
     // Residuals past 1 km are clamped (a bound the fixed-point loss sums rely on).
     residual = clamp(a[ch] - o, -MAX_DEPTH_RESIDUAL, MAX_DEPTH_RESIDUAL);
     return o > 0.0;
@@ -68,11 +68,11 @@ vec4 load_observed(uint index) {
 vec3 loss_terms(uint index, vec4 a) {
     vec4 o = load_observed(index);
     float n = float(pc.width * pc.height);
-    if (pc.loss == LOSS_MSE) {
+    if (LOSS == LOSS_MSE) {
         // Only called for the background (a = 0), where depth is not compared.
         vec4 d = blended(a - o);
         return vec3(dot(d, d) / (n * float(mse_channels())), 0.0, 0.0);
-    } else if (pc.loss == LOSS_IOU) {
+    } else if (LOSS == LOSS_IOU) {
         return vec3(0.0, a.x * o.x, a.x + o.x - a.x * o.x);
     }
     return vec3(a.x * distance_field[index] / n, 0.0, 0.0);
@@ -82,13 +82,13 @@ vec3 loss_terms(uint index, vec4 a) {
 vec3 loss_excess(uint index, vec4 a) {
     vec4 o = load_observed(index);
     float n = float(pc.width * pc.height);
-    if (pc.loss == LOSS_MSE) {
+    if (LOSS == LOSS_MSE) {
         // (a - o)^2 - o^2 = a (a - 2 o)
         float excess = dot(blended(a), blended(a - 2.0 * o)) / (n * float(mse_channels()));
         float r;
         if (depth_compared(index, a, r)) excess += depth_term(r, n);
         return vec3(excess, 0.0, 0.0);
-    } else if (pc.loss == LOSS_IOU) {
+    } else if (LOSS == LOSS_IOU) {
         return vec3(0.0, a.x * o.x, a.x * (1.0 - o.x));
     }
     return vec3(a.x * distance_field[index] / n, 0.0, 0.0);
@@ -100,11 +100,11 @@ vec4 loss_gradient(uint index, uint view) {
     vec4 a = load_antialiased(index);
     vec4 o = load_observed(index);
     vec4 g = vec4(0.0);
-    if (pc.loss == LOSS_MSE) {
+    if (LOSS == LOSS_MSE) {
         g = 2.0 * blended(a - o) / (n * float(mse_channels()));
         float r;
-        if (depth_compared(index, a, r)) g[pc.channels - 1u] = depth_term_gradient(r, n);
-    } else if (pc.loss == LOSS_IOU) {
+        if (depth_compared(index, a, r)) g[CHANNELS - 1u] = depth_term_gradient(r, n);
+    } else if (LOSS == LOSS_IOU) {
         float intersection = stats[4u * view + 1u];
         float union_ = stats[4u * view + 2u];
         if (union_ > 0.0) g.x = -(o.x * union_ - intersection * (1.0 - o.x)) / (union_ * union_);
@@ -121,13 +121,13 @@ vec4 loss_gradient(uint index, uint view) {
 vec2 loss_magnitudes(uint index, vec4 a) {
     float n = float(pc.width * pc.height);
     vec4 o = load_observed(index);
-    if (pc.loss == LOSS_MSE) {
+    if (LOSS == LOSS_MSE) {
         vec4 d = abs(blended(a - o));
         float m = 2.0 * max(max(d.x, d.y), max(d.z, d.w)) / (n * float(mse_channels()));
         float r;
         if (depth_compared(index, a, r)) m = max(m, abs(depth_term_gradient(r, n)));
         return vec2(m, 0.0);
-    } else if (pc.loss == LOSS_IOU) {
+    } else if (LOSS == LOSS_IOU) {
         return vec2(abs(o.x), abs(1.0 - o.x));
     }
     return vec2(abs(distance_field[index]) / n, 0.0);
@@ -136,7 +136,7 @@ vec2 loss_magnitudes(uint index, vec4 a) {
 // |dL/dA| <= loss_bound(largest, view) at every listed pixel of the view: for IoU,
 // |o U - I (1 - o)| / U^2 with the view's intersection I and union U.
 float loss_bound(vec2 largest, uint view) {
-    if (pc.loss == LOSS_IOU) {
+    if (LOSS == LOSS_IOU) {
         float intersection = stats[4u * view + 1u];
         float union_ = stats[4u * view + 2u];
         return union_ > 0.0 ? (largest.x * union_ + abs(intersection) * largest.y) / (union_ * union_) : 0.0;

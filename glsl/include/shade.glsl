@@ -1,16 +1,16 @@
 // The image that is compared, before antialiasing: coverage (1 on the object, 0 on the
-// background) when pc.channels == 0, else per-vertex attributes (pc.channels of them,
+// background) when CHANNELS == 0, else per-vertex attributes (CHANNELS of them,
 // at most 4; each view has its own, [view][vertex][channel]) interpolated with the exact
 // perspective-correct barycentrics. Background 0.
-// Needs diff.glsl, an `attributes[]` buffer, `pc.channels` and `pc.vertex_count`.
+// Needs diff.glsl, an `attributes[]` buffer, `CHANNELS` and `pc.vertex_count`.
 
 uint attribute_index(uint view, uint v, uint ch) {
-    return (view * pc.vertex_count + v) * pc.channels + ch;
+    return (view * pc.vertex_count + v) * CHANNELS + ch;
 }
 
 vec4 shade_triangle(uint view, Triangle tri, vec3 b) {
     vec4 c = vec4(0.0);
-    for (uint ch = 0u; ch < pc.channels; ++ch) {
+    for (uint ch = 0u; ch < CHANNELS; ++ch) {
         c[ch] = b.x * attributes[attribute_index(view, tri.v.x, ch)]
               + b.y * attributes[attribute_index(view, tri.v.y, ch)]
               + b.z * attributes[attribute_index(view, tri.v.z, ch)];
@@ -20,9 +20,9 @@ vec4 shade_triangle(uint view, Triangle tri, vec3 b) {
 
 vec4 colour_at(ViewData vd, uint view, ivec2 pixel, uint id) {
     if (id == 0u) return vec4(0.0);
-    if (pc.channels == 0u) return vec4(1.0, 0.0, 0.0, 0.0);
+    if (CHANNELS == 0u) return vec4(1.0, 0.0, 0.0, 0.0);
     Triangle tri = load_triangle(vd, id - 1u);
     return shade_triangle(view, tri, barycentrics(tri.clip[0], tri.clip[1], tri.clip[2], pixel_ndc(pixel, vd)));
 }
 
-uint image_channels() { return max(pc.channels, 1u); }
+uint image_channels() { return max(CHANNELS, 1u); }

@@ -16,6 +16,7 @@
 pub mod reference;
 
 use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
 
 use bytemuck::{Pod, Zeroable};
 
@@ -362,18 +363,54 @@ fn stats_shift(desc: &SceneDesc, width: u32, height: u32) -> i32 {
     (61 - bound.max(1e-30).log2().ceil() as i32).clamp(-60, 120)
 }
 
-/// The pipelines of the differentiable renderer (create once, use for many scenes).
-pub struct DiffRenderer {
-    rasterizer: Rasterizer,
+/// What a scene's per-pixel passes compare, compiled into them as the specialization
+/// constants of `glsl/include/diff_pass.glsl` (ids 1 to 4): a CPU driver runs both sides
+/// of every branch, so one pipeline for all scenes made every pixel pay for every loss and
+/// channel layout.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+struct PassVariant {
+    loss: u32,
+    channels: u32,
+    depth: u32,
+    coverage: u32,
+}
+
+/// The per-pixel passes of one [`PassVariant`].
+struct PassPipelines {
     /// `glsl/classify.comp` stage 0 (the box's pixels, every evaluation) and stage 1 (the
     /// background terms, once per observation).
     classify: ComputePipeline,
     background: ComputePipeline,
-    work_args: ComputePipeline,
     /// `glsl/antialias.comp` stage 0 (the pairs) and stage 1 (the antialiased image).
     pairs: ComputePipeline,
     antialias: ComputePipeline,
     backward: ComputePipeline,
+}
+
+impl PassPipelines {
+    fn new(ctx: &Context, v: PassVariant) -> Result<Self> {
+        // Constant 0 is the stage where a shader has one (a pipeline per stage).
+        let pipeline = |shader, stage: u32| {
+            let constants = [stage, v.loss, v.channels, v.depth, v.coverage];
+            ComputePipeline::specialized(ctx, shader, &constants)
+        };
+        Ok(Self {
+            classify: pipeline(&shaders::CLASSIFY_COMP, 0)?,
+            background: pipeline(&shaders::CLASSIFY_COMP, 1)?,
+            pairs: pipeline(&shaders::ANTIALIAS_COMP, 0)?,
+            antialias: pipeline(&shaders::ANTIALIAS_COMP, 1)?,
+            backward: pipeline(&shaders::ANTIALIAS_BACKWARD_COMP, 0)?,
+        })
+    }
+}
+
+/// The pipelines of the differentiable renderer (create once, use for many scenes).
+pub struct DiffRenderer {
+    ctx: Context,
+    rasterizer: Rasterizer,
+    /// The per-pixel passes for each variant met so far, compiled when first needed.
+    passes: Mutex<HashMap<PassVariant, Arc<PassPipelines>>>,
+    work_args: ComputePipeline,
     finalize: ComputePipeline,
     pose: ComputePipeline,
     resolve: ComputePipeline,
@@ -390,16 +427,11 @@ impl DiffRenderer {
     /// Builds the differentiable renderer's pipelines and its rasterizer.
     pub fn new(ctx: &Context) -> Result<Self> {
         let pipeline = |shader| ComputePipeline::new(ctx, shader);
-        // A shader's stages as pipelines of their own (a specialization constant).
-        let stage = |shader, stage| ComputePipeline::specialized(ctx, shader, &[stage]);
-        Ok(Self {
+        let renderer = Self {
+            ctx: ctx.clone(),
             rasterizer: Rasterizer::new(ctx)?,
-            classify: stage(&shaders::CLASSIFY_COMP, 0)?,
-            background: stage(&shaders::CLASSIFY_COMP, 1)?,
+            passes: Mutex::new(HashMap::new()),
             work_args: pipeline(&shaders::WORK_ARGS_COMP)?,
-            pairs: stage(&shaders::ANTIALIAS_COMP, 0)?,
-            antialias: stage(&shaders::ANTIALIAS_COMP, 1)?,
-            backward: pipeline(&shaders::ANTIALIAS_BACKWARD_COMP)?,
             finalize: pipeline(&shaders::LOSS_FINALIZE_COMP)?,
             pose: pipeline(&shaders::POSE_GRADIENT_COMP)?,
             resolve: pipeline(&shaders::FIXED_RESOLVE_COMP)?,
@@ -407,7 +439,21 @@ impl DiffRenderer {
             bounds: pipeline(&shaders::BOUNDS_COMP)?,
             depth: pipeline(&shaders::DEPTH_COMP)?,
             distance: DistanceField::new(ctx)?,
-        })
+        };
+        // A mask against its coverage, the most common scene, ready before the first.
+        renderer.passes(PassVariant::default())?;
+        Ok(renderer)
+    }
+
+    /// The per-pixel passes compiled for `variant` (compiled on first use, then kept).
+    fn passes(&self, variant: PassVariant) -> Result<Arc<PassPipelines>> {
+        let mut passes = self.passes.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(found) = passes.get(&variant) {
+            return Ok(found.clone());
+        }
+        let compiled = Arc::new(PassPipelines::new(&self.ctx, variant)?);
+        passes.insert(variant, compiled.clone());
+        Ok(compiled)
     }
 
     /// The forward rasterizer the scenes render with.
@@ -813,7 +859,7 @@ impl Scene {
         rec.fill_buffer(&self.stats_fixed, 0);
         rec.memory_barrier();
         rec.run_compute(
-            &renderer.background,
+            &renderer.passes(self.pass_variant())?.background,
             &self.pass_bindings(),
             &self.pass_constants(1),
             Groups::Count(self.grid(w * h), 1, n),
@@ -864,6 +910,15 @@ impl Scene {
     fn grid(&self, items: u32) -> u32 {
         let fewest = items.div_ceil(64 * ITEMS_PER_INVOCATION);
         items.div_ceil(64).clamp(1, self.grid_groups.max(fewest))
+    }
+
+    fn pass_variant(&self) -> PassVariant {
+        PassVariant {
+            loss: self.loss.code(),
+            channels: self.channels,
+            depth: self.depth.is_some() as u32,
+            coverage: self.coverage as u32,
+        }
     }
 
     fn pass_constants(&self, stage: u32) -> PassConstants {
@@ -935,6 +990,7 @@ impl Scene {
         rec: &mut Recorder,
         marks: &mut Marks,
     ) -> Result<()> {
+        let passes = renderer.passes(self.pass_variant())?;
         marks.start(rec);
         // The listed pixels, dispatch arguments, bounds and largest terms; the counts of
         // lost walks and unfinished pixels run on.
@@ -1028,7 +1084,7 @@ impl Scene {
 
         let work = Groups::Indirect(&self.work_count, 4);
         rec.run_compute(
-            &renderer.classify,
+            &passes.classify,
             &bindings,
             &constants,
             Groups::Indirect(&self.boxes, 0),
@@ -1046,7 +1102,7 @@ impl Scene {
         marks.pass(rec, "work arguments")?;
 
         // The pairs (one walk each), then the antialiased image and its loss.
-        for (pipeline, name) in [(&renderer.pairs, "pairs"), (&renderer.antialias, "antialias")] {
+        for (pipeline, name) in [(&passes.pairs, "pairs"), (&passes.antialias, "antialias")] {
             rec.run_compute(pipeline, &bindings, &constants, work);
             rec.memory_barrier();
             marks.pass(rec, name)?;
@@ -1070,7 +1126,7 @@ impl Scene {
 
         // The backward: fixed-point sums at the scale the forward's bound on their terms
         // allows (glsl/include/fixed_point.glsl), resolved to floats.
-        rec.run_compute(&renderer.backward, &bindings, &constants, work);
+        rec.run_compute(&passes.backward, &bindings, &constants, work);
         rec.memory_barrier();
         marks.pass(rec, "backward")?;
         let vertices = self.mesh.vertex_count();
