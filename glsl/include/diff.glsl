@@ -136,6 +136,12 @@ bool left_of_line(vec3 c, vec2 pf, vec2 d) {
     return side >= 0.0;
 }
 
+// Which side of the line through pf along d each corner of `tri` lies on.
+bvec3 sides_of_line(Triangle tri, vec2 pf, vec2 d) {
+    return bvec3(left_of_line(tri.clip[0], pf, d), left_of_line(tri.clip[1], pf, d),
+                 left_of_line(tri.clip[2], pf, d));
+}
+
 Crossing find_crossing(ViewData vd, uint t, vec2 pf, vec2 pb) {
     Crossing c;
     c.found = false;
@@ -150,45 +156,27 @@ Crossing find_crossing(ViewData vd, uint t, vec2 pf, vec2 pb) {
     // The triangle's orientation on screen; det(clip corners) = sx sy det(camera corners).
     // The same on every triangle the walk enters (it stops at the first that differs).
     float inside = facing(tri);
-    for (int step = 0; step < MAX_WALK; ++step) {
-        bvec3 left = bvec3(left_of_line(tri.clip[0], pf, d), left_of_line(tri.clip[1], pf, d),
-                           left_of_line(tri.clip[2], pf, d));
-        int exit_edge = -1;
-        if (step == 0) {
-            // Of the edges the line crosses (corners on both sides), the one it leaves by.
-            float best = -3.0e38;
-            for (int k = 0; k < 3; ++k) {
-                if (left[(k + 1) % 3] == left[(k + 2) % 3]) continue;
-                float ef = walk_edge_function(tri, k, pf);
-                float eb = walk_edge_function(tri, k, pb);
-                float outward = (ef - eb) * inside;
-                if (outward > best) {
-                    best = outward;
-                    exit_edge = k;
-                }
-            }
-            if (exit_edge < 0) {
-                c.missed = true;
-                return c;
-            }
-        } else {
-            // The corner opposite the entry edge, and the entry corner on its other side.
-            int apex = -1;
-            int on_entry = 0;
-            for (int k = 0; k < 3; ++k) {
-                if (tri.v[k] == entry.x || tri.v[k] == entry.y) ++on_entry;
-                else apex = k;
-            }
-            if (on_entry != 2 || apex < 0) {
-                c.lost = true;  // the neighbour table does not match the triangles
-                return c;
-            }
-            int i = (apex + 1) % 3;
-            int j = (apex + 2) % 3;
-            // Leave by the edge apex-i if i is across the line from apex (the edge opposite
-            // j), else by apex-j (opposite i).
-            exit_edge = left[i] != left[apex] ? j : i;
+    // The first triangle's exit: of the edges the line crosses (corners on both sides), the
+    // one it leaves by. (Before the loop, which then holds only the later steps' rule: a
+    // CPU driver runs both sides of a branch inside it at every step.)
+    bvec3 left = sides_of_line(tri, pf, d);
+    int exit_edge = -1;
+    float best = -3.0e38;
+    for (int k = 0; k < 3; ++k) {
+        if (left[(k + 1) % 3] == left[(k + 2) % 3]) continue;
+        float ef = walk_edge_function(tri, k, pf);
+        float eb = walk_edge_function(tri, k, pb);
+        float outward = (ef - eb) * inside;
+        if (outward > best) {
+            best = outward;
+            exit_edge = k;
         }
+    }
+    if (exit_edge < 0) {
+        c.missed = true;
+        return c;
+    }
+    for (int step = 0; step < MAX_WALK; ++step) {
         float ef = walk_edge_function(tri, exit_edge, pf);
         float eb = walk_edge_function(tri, exit_edge, pb);
         // The segment ends before the exit: pb is on this surface, no silhouette between.
@@ -213,6 +201,24 @@ Crossing find_crossing(ViewData vd, uint t, vec2 pf, vec2 pb) {
         entry = uvec2(tri.v[(exit_edge + 1) % 3], tri.v[(exit_edge + 2) % 3]);
         current = next;
         tri = next_tri;
+        // The next exit. The corner opposite the entry edge, and the entry corner on its
+        // other side.
+        left = sides_of_line(tri, pf, d);
+        int apex = -1;
+        int on_entry = 0;
+        for (int k = 0; k < 3; ++k) {
+            if (tri.v[k] == entry.x || tri.v[k] == entry.y) ++on_entry;
+            else apex = k;
+        }
+        if (on_entry != 2 || apex < 0) {
+            c.lost = true;  // the neighbour table does not match the triangles
+            return c;
+        }
+        int i = (apex + 1) % 3;
+        int j = (apex + 2) % 3;
+        // Leave by the edge apex-i if i is across the line from apex (the edge opposite
+        // j), else by apex-j (opposite i).
+        exit_edge = left[i] != left[apex] ? j : i;
     }
     c.lost = true;
     return c;
