@@ -113,11 +113,20 @@ pub fn check_npy_size(name: &str, bytes: &[u8]) -> Result<()> {
         .and_then(|s| Some(s.strip_prefix('(')?.split(')').next()?.to_string()))
         .ok_or_else(|| bad("no shape in the .npy header".into()))?;
     let mut count = 1u64;
+    // The product of the sizes other than 0: past isize::MAX bytes it is no array (and
+    // ndarray-npy panics on such a shape even when another size is 0).
+    let mut nonzero = 1u64;
     for dim in shape.split(',').map(str::trim).filter(|d| !d.is_empty()) {
         let dim: u64 = dim
             .parse()
             .map_err(|_| bad(format!("shape ({shape}) is not a list of sizes")))?;
         count = count.saturating_mul(dim);
+        nonzero = nonzero.saturating_mul(dim.max(1));
+    }
+    if nonzero.saturating_mul(element_bytes.max(1)) > isize::MAX as u64 {
+        return Err(bad(format!(
+            "the header declares shape ({shape}), larger than any array can be"
+        )));
     }
     let declared = count.saturating_mul(element_bytes);
     let held = (bytes.len() - start - length) as u64;

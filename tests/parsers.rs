@@ -45,6 +45,24 @@ fn npy_header(descr: &str, shape: &str) -> Vec<u8> {
     bytes
 }
 
+/// A size past isize::MAX beside a 0 declares no data, but no array can have that shape:
+/// an error, not ndarray-npy's panic (found by the property test below).
+#[test]
+fn npy_with_a_size_past_isize_max_is_an_error() {
+    for shape in [
+        "0, 9223372036854775808",
+        "9223372036854775808, 0",
+        "0, 3, 4611686018427387904",
+    ] {
+        let bytes = npy_header("<f8", shape);
+        let error = vkdr::io::points_from_npy("test.npy", &bytes).unwrap_err();
+        assert!(
+            error.to_string().contains("larger than any array"),
+            "{error}"
+        );
+    }
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 256, ..ProptestConfig::default() })]
 
