@@ -1,8 +1,9 @@
 #version 460
 // Forward of the listed pixels (see classify.comp), grid-stride over the work list.
-// Stage 0: each listed pixel p finds its pairs with p + (1, 0) and p + (0, 1) (the walk to
-// the silhouette crossing, once per pair) and writes them to pairs_x / pairs_y (a pair
-// that matters has both pixels listed, so every pair read later is written here).
+// Stage 0: for each pixel pair that matters, (p, p + (1, 0)) or (p, p + (0, 1)) as
+// classify.comp listed them, the walk to the silhouette crossing (once per pair), written
+// to pairs_x / pairs_y at p (every pair read later is one that matters, so is written
+// here).
 // Stage 1: shade (coverage or interpolated attributes), antialias across the silhouette
 // edges of the pixel's four pairs, write the value and add the loss terms to stats_fixed
 // (int64 atomics: the same sum in any order).
@@ -67,19 +68,31 @@ vec4 antialiased_value(uint view, ivec2 p, ivec2 size, uint id) {
 
 void main() {
     ivec2 size = ivec2(pc.width, pc.height);
-    uint count = work_count[0];
+    // Stage 0 runs over the pairs that matter (along x, then along y), stage 1 over the
+    // listed pixels.
+    uint along_x = work_count[PAIRS_X_COUNT];
+    uint count = STAGE == 0u ? along_x + work_count[PAIRS_Y_COUNT] : work_count[0];
     uint stride = gl_NumWorkGroups.x * gl_WorkGroupSize.x;
     uint done = 0u;
     for (uint i = gl_GlobalInvocationID.x; i < count; i += stride) {
         ++done;
+        if (STAGE == 0u) {
+            bool x = i < along_x;
+            uint index = x ? pair_work_x[i] : pair_work_y[i - along_x];
+            float alpha;
+            uint record = pair_record(view_of(index), pixel_of(index), size, x ? 0 : 1, alpha);
+            if (x) {
+                pairs_x[index] = record;
+                alphas_x[index] = alpha;
+            } else {
+                pairs_y[index] = record;
+                alphas_y[index] = alpha;
+            }
+            continue;
+        }
         uint index = work[i];
         uint view = view_of(index);
         ivec2 p = pixel_of(index);
-        if (STAGE == 0u) {
-            pairs_x[index] = pair_record(view, p, size, 0, alphas_x[index]);
-            pairs_y[index] = pair_record(view, p, size, 1, alphas_y[index]);
-            continue;
-        }
         vec4 a = antialiased_value(view, p, size, ids[index]);
         store_antialiased(index, a);
         largest_loss = max(largest_loss, loss_magnitudes(index, a));

@@ -4,7 +4,9 @@
 // all covered or all background) and nothing is interpolated, its antialiased value is
 // its coverage; write it and add its loss terms less the background's (loss_excess) to
 // stats_fixed, one int64 fixed-point sum per subgroup (the same sums in any order). Every
-// other pixel is appended to the work list for antialias.comp and antialias_backward.comp.
+// other pixel is appended to the work list for antialias.comp and antialias_backward.comp,
+// and each pair that matters of a pixel with its right and lower neighbours to the pair
+// lists (diff_pass.glsl pair_work_x, pair_work_y) for antialias.comp stage 0.
 // Stage 1, once per observation (x over workgroups, grid stride over every pixel of view
 // z): the background terms loss_terms(pixel, 0) of the whole image, added to stats_fixed
 // (the host keeps them and starts every evaluation's sums from them).
@@ -36,6 +38,16 @@ void background_terms() {
 // the work list is appended to, once per subgroup.
 const int ROWS = 16;
 
+// This invocation's first slot in the list counted at work_count[counter] for the rows
+// `bits` flags (one atomic per subgroup).
+uint list_slots(uint counter, uint bits) {
+    uint count = bitCount(bits);
+    uint total = subgroupAdd(count);
+    uint base = 0u;
+    if (subgroupElect() && total > 0u) base = atomicAdd(work_count[counter], total);
+    return subgroupBroadcastFirst(base) + subgroupExclusiveAdd(count);
+}
+
 void main() {
     if (STAGE == 1u) {
         background_terms();
@@ -54,6 +66,8 @@ void main() {
     uint id = rows > 0 ? ids[first] : 0u;
     uint up = rows > 0 && top.y > 0 ? ids[first - pc.width] : id;
     uint listed = 0u;  // bit r: row r is listed
+    uint pairs_x = 0u;  // bit r: row r's pair with its right neighbour matters
+    uint pairs_y = 0u;  // ... with the pixel below
     vec3 terms = vec3(0.0);
     for (int r = 0; r < rows; ++r) {
         uint index = first + uint(r) * pc.width;
@@ -61,8 +75,11 @@ void main() {
         uint down = y + 1 < size.y ? ids[index + pc.width] : id;
         uint left = top.x > 0 ? ids[index - 1u] : id;
         uint right = top.x + 1 < size.x ? ids[index + 1u] : id;
-        bool any_pair = pair_matters(id, right) || pair_matters(id, left) || pair_matters(id, down)
-            || pair_matters(id, up);
+        bool pair_x = pair_matters(id, right);
+        bool pair_y = pair_matters(id, down);
+        pairs_x |= uint(pair_x) << uint(r);
+        pairs_y |= uint(pair_y) << uint(r);
+        bool any_pair = pair_x || pair_matters(id, left) || pair_y || pair_matters(id, up);
         if (any_pair || (CHANNELS > 0u && id != 0u)) {
             listed |= 1u << uint(r);
         } else if (id != 0u) {
@@ -76,16 +93,24 @@ void main() {
         id = down;
     }
 
-    // One slot range per subgroup in the work list, then each invocation's pixels in order.
-    uint count = bitCount(listed);
-    uint total = subgroupAdd(count);
-    uint base = 0u;
-    if (subgroupElect() && total > 0u) base = atomicAdd(work_count[0], total);
-    base = subgroupBroadcastFirst(base) + subgroupExclusiveAdd(count);
+    // One slot range per subgroup in each list, then each invocation's pixels in order.
+    uint base = list_slots(0u, listed);
     while (listed != 0u) {
         int r = findLSB(listed);
         listed &= listed - 1u;
         work[base++] = first + uint(r) * pc.width;
+    }
+    base = list_slots(PAIRS_X_COUNT, pairs_x);
+    while (pairs_x != 0u) {
+        int r = findLSB(pairs_x);
+        pairs_x &= pairs_x - 1u;
+        pair_work_x[base++] = first + uint(r) * pc.width;
+    }
+    base = list_slots(PAIRS_Y_COUNT, pairs_y);
+    while (pairs_y != 0u) {
+        int r = findLSB(pairs_y);
+        pairs_y &= pairs_y - 1u;
+        pair_work_y[base++] = first + uint(r) * pc.width;
     }
 
     terms = subgroupAdd(terms);

@@ -12,10 +12,22 @@ layout(push_constant, std430) uniform Constants { uint max_groups; } pc;
 
 const uint ITEMS_PER_INVOCATION = 64u;
 
-void main() {
-    uint count = work_count[0];
+// work_count slots: the pair lists' counts and the pairs pass's dispatch (as in
+// include/diff_pass.glsl).
+const uint PAIRS_X_COUNT = 17u;
+const uint PAIRS_Y_COUNT = 18u;
+const uint PAIR_DISPATCH = 19u;
+
+// The dispatch (x, y, z) at `at` for a grid-stride pass over `count` items.
+void dispatch(uint at, uint count) {
     uint fewest = (count + 64u * ITEMS_PER_INVOCATION - 1u) / (64u * ITEMS_PER_INVOCATION);
-    work_count[1] = clamp((count + 63u) / 64u, 1u, max(pc.max_groups, fewest));
-    work_count[2] = 1u;
-    work_count[3] = 1u;
+    work_count[at] = clamp((count + 63u) / 64u, 1u, max(pc.max_groups, fewest));
+    work_count[at + 1u] = 1u;
+    work_count[at + 2u] = 1u;
+}
+
+void main() {
+    // The passes over the listed pixels, and the pairs pass.
+    dispatch(1u, work_count[0]);
+    dispatch(PAIR_DISPATCH, work_count[PAIRS_X_COUNT] + work_count[PAIRS_Y_COUNT]);
 }

@@ -44,6 +44,16 @@ layout(set = 0, binding = 20, std430) buffer Touched { uint touched[]; };
 layout(set = 0, binding = 21, std430) buffer AlphasX { float alphas_x[]; };
 layout(set = 0, binding = 22, std430) buffer AlphasY { float alphas_y[]; };
 const uint VERTEX_BLOCK = 8u;  // as in src/diff/mod.rs
+// The pixel pairs that matter, as the pixel indices of their left / upper pixels: along x
+// and along y, each appended by classify.comp (counts in work_count[PAIRS_X_COUNT] and
+// [PAIRS_Y_COUNT]). antialias.comp stage 0 walks these instead of both pairs of every
+// listed pixel, about a third of which matter: on a CPU driver a lane whose pair does not
+// matter waits while the others of its SIMD batch walk.
+layout(set = 0, binding = 23, std430) buffer PairWorkX { uint pair_work_x[]; };
+layout(set = 0, binding = 24, std430) buffer PairWorkY { uint pair_work_y[]; };
+const uint PAIRS_X_COUNT = 17u;  // work_count slots (as in src/diff/mod.rs), then at
+const uint PAIRS_Y_COUNT = 18u;  // PAIR_DISPATCH the pairs pass's dispatch arguments
+const uint PAIR_DISPATCH = 19u;  // (glsl/work_args.comp)
 
 // work_count slots after the count and dispatch arguments (LOST_WALKS = 4, MISSED_STARTS
 // = 7 and UNFINISHED = 8 in diff.glsl). The backward adds its terms in one pass, at a

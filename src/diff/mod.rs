@@ -46,8 +46,12 @@ fn box_words(views: u32) -> u64 {
 /// pairs whose line misses the front triangle ([`Scene::missed_starts`]), then (at
 /// [`UNFINISHED`]) the listed pixels a pass never reached since [`Scene::record_prepare`],
 /// then the bounds' ingredients and the largest terms the backward added (`CROSSING_MAX`
-/// to `ATTRIBUTE_SEEN` there), cleared with the first slots every evaluation.
-const WORK_COUNT_WORDS: u64 = 17;
+/// to `ATTRIBUTE_SEEN` there), then the counts of the two pair lists and the pairs pass's
+/// dispatch arguments, cleared with the first slots every evaluation.
+const WORK_COUNT_WORDS: u64 = 22;
+/// The pair lists' counts and the pairs pass's dispatch arguments in the work-count buffer
+/// (as `PAIRS_X_COUNT` ... in `glsl/include/diff_pass.glsl`).
+const PAIR_DISPATCH: u64 = 19;
 /// As `LOST_WALKS` in `glsl/include/diff.glsl`.
 const LOST_WALKS: usize = 4;
 /// As `CAMERA_MAX`, `ATTRIBUTE_MAX`, `CAMERA_SEEN` and `ATTRIBUTE_SEEN` in
@@ -511,6 +515,9 @@ pub struct Scene {
     boxes: Buffer,
     stats_shift: i32,
     work: Buffer,
+    /// The pixel pairs that matter, along x and along y (`glsl/classify.comp`).
+    pair_work_x: Buffer,
+    pair_work_y: Buffer,
     work_count: Buffer,
     grad_camera: Buffer,
     grad_attributes: Buffer,
@@ -793,6 +800,8 @@ impl Scene {
             boxes: device("pixel boxes", box_words(n) * 4)?,
             stats_shift,
             work: device("work list", pixels * 4)?,
+            pair_work_x: device("pairs along x", pixels * 4)?,
+            pair_work_y: device("pairs along y", pixels * 4)?,
             work_count: device("work count", WORK_COUNT_WORDS * 4)?,
             grad_camera: device("camera gradients", n as u64 * vertices * 12)?,
             grad_attributes: device(
@@ -877,7 +886,7 @@ impl Scene {
     }
 
     /// The bindings of the per-pixel passes (`glsl/include/diff_pass.glsl`).
-    fn pass_bindings(&self) -> [Binding<'_>; 23] {
+    fn pass_bindings(&self) -> [Binding<'_>; 25] {
         [
             Binding::buffer(self.mesh.positions()),
             Binding::buffer(self.mesh.triangles()),
@@ -902,6 +911,8 @@ impl Scene {
             Binding::buffer(&self.touched),
             Binding::buffer(&self.alphas_x),
             Binding::buffer(&self.alphas_y),
+            Binding::buffer(&self.pair_work_x),
+            Binding::buffer(&self.pair_work_y),
         ]
     }
 
@@ -1102,8 +1113,12 @@ impl Scene {
         marks.pass(rec, "work arguments")?;
 
         // The pairs (one walk each), then the antialiased image and its loss.
-        for (pipeline, name) in [(&passes.pairs, "pairs"), (&passes.antialias, "antialias")] {
-            rec.run_compute(pipeline, &bindings, &constants, work);
+        let pairs = Groups::Indirect(&self.work_count, 4 * PAIR_DISPATCH);
+        for (pipeline, groups, name) in [
+            (&passes.pairs, pairs, "pairs"),
+            (&passes.antialias, work, "antialias"),
+        ] {
+            rec.run_compute(pipeline, &bindings, &constants, groups);
             rec.memory_barrier();
             marks.pass(rec, name)?;
         }
