@@ -577,11 +577,7 @@ fn preference_table(rows: &[Row]) -> String {
          | category | lower-loss trials | ratio (as seen) | higher-loss trials | ratio (as seen) |\n|---|---|---|---|---|\n",
     );
     for category in categories(rows) {
-        let trials: Vec<(&Row, &Trial)> = rows
-            .iter()
-            .filter(|r| r.category == category)
-            .flat_map(|r| r.trials.iter().map(move |t| (r, t)))
-            .collect();
+        let trials = category_trials(rows, category);
         let summary = |lower: bool| {
             let of: Vec<_> = trials
                 .iter()
@@ -608,6 +604,14 @@ fn preference_table(rows: &[Row]) -> String {
     md
 }
 
+/// Every trial of `category`'s rows, with its row.
+fn category_trials<'a>(rows: &'a [Row], category: &str) -> Vec<(&'a Row, &'a Trial)> {
+    rows.iter()
+        .filter(|r| r.category == category)
+        .flat_map(|r| r.trials.iter().map(move |t| (r, t)))
+        .collect()
+}
+
 /// Views whose line of sight lies within this angle of the plane of a test instance's two
 /// longest axes count as edge-on.
 const EDGE_ON: f64 = 30.0;
@@ -623,11 +627,7 @@ fn view_table(rows: &[Row]) -> String {
          | category | edge-on trials | ratio | rotation (deg) | other trials | ratio | rotation (deg) |\n|---|---|---|---|---|---|---|\n"
     );
     for category in categories(rows) {
-        let trials: Vec<(&Row, &Trial)> = rows
-            .iter()
-            .filter(|r| r.category == category)
-            .flat_map(|r| r.trials.iter().map(move |t| (r, t)))
-            .collect();
+        let trials = category_trials(rows, category);
         let summary = |edge_on: bool| {
             let of: Vec<_> = trials
                 .iter()
