@@ -82,15 +82,11 @@ const uint TERMS_PER_LISTED = 3u;
 // loss_finalize.comp computes the loss from those sums.
 
 layout(push_constant, std430) uniform Constants {
-    uint channels;  // not read: CHANNELS below
-    uint loss;      // not read: LOSS below
     uint vertex_count;
     uint width;
     uint height;
     int stats_shift;
     uint stage;     // bounds.comp's stage (antialias.comp and classify.comp: STAGE)
-    uint depth;     // not read: DEPTH below
-    uint coverage;  // not read: COVERAGE below
     float depth_scale;   // metres: residuals up to it cost quadratically (Huber)
     float depth_weight;
 } pc;
@@ -98,8 +94,7 @@ layout(push_constant, std430) uniform Constants {
 // What the scene compares, as specialization constants (ids 1 to 4; a pipeline per
 // combination, `PassVariant` in src/diff/mod.rs), not push constants: a CPU driver runs
 // both sides of every branch, so a branch on a push constant would make every pixel pay
-// for every loss and channel layout. The push constants' fields of the same names are
-// kept for the layout and not read.
+// for every loss and channel layout.
 layout(constant_id = 1) const uint LOSS = 0u;      // LOSS_MSE, LOSS_IOU, LOSS_DISTANCE
 layout(constant_id = 2) const uint CHANNELS = 0u;  // 0: coverage, else interpolated attributes per vertex
 layout(constant_id = 3) const uint DEPTH = 0u;     // 1: the last channel is camera-space depth

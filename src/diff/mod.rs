@@ -294,15 +294,11 @@ const _: () = assert!(shaders::DEPTH_COMP.takes::<DepthConstants>());
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct PassConstants {
-    channels: u32,
-    loss: u32,
     vertex_count: u32,
     width: u32,
     height: u32,
     stats_shift: i32,
     stage: u32,
-    depth: u32,
-    coverage: u32,
     depth_scale: f32,
     depth_weight: f32,
 }
@@ -934,15 +930,11 @@ impl Scene {
 
     fn pass_constants(&self, stage: u32) -> PassConstants {
         PassConstants {
-            channels: self.channels,
-            loss: self.loss.code(),
             vertex_count: self.mesh.vertex_count(),
             width: self.views.width(),
             height: self.views.height(),
             stats_shift: self.stats_shift,
             stage,
-            depth: self.depth.is_some() as u32,
-            coverage: self.coverage as u32,
             depth_scale: self.depth.map_or(1.0, |d| d.scale as f32),
             depth_weight: self.depth.map_or(0.0, |d| d.weight as f32),
         }
