@@ -834,10 +834,11 @@ pub fn evaluate_instance(
     let oracle_code = space.oracle_code(ctx, &test_vertices, &settings.cpd)?;
     let oracle_vertices = space.vertices(&oracle_code)?;
     let error = |vertices: &[DVec3]| surface_error(&truth, vertices, space.canonical.triangles());
-    // The mean of the error both ways, test to shape and shape to test.
-    let both_ways = |vertices: &[DVec3]| -> Result<f64> {
+    // The mean of the error both ways, test to shape (`forward`, already measured) and
+    // shape to test.
+    let both_ways = |vertices: &[DVec3], forward: f64| -> Result<f64> {
         let reverse = reverse_error(vertices, space.canonical.triangles(), test, hash(name))?;
-        Ok(0.5 * (error(vertices) + reverse))
+        Ok(0.5 * (forward + reverse))
     };
     let mut rng = Rng::new(settings.seed ^ hash(name));
     let (mut known_ch, mut noisy_ch) = (vec![], vec![]);
@@ -957,6 +958,8 @@ pub fn evaluate_instance(
         } else {
             rotation_error
         };
+        let seen = as_seen(&result.vertices, result.pose, pose);
+        let pose_noise_seen = error(&seen);
         trials.push(Trial {
             azimuth,
             elevation,
@@ -965,8 +968,8 @@ pub fn evaluate_instance(
             known_pose: known_error,
             pose_noise: error(&result.vertices),
             pose_noise_placed: error(&placed_like(&result.vertices, &oracle_vertices)),
-            pose_noise_seen: error(&as_seen(&result.vertices, result.pose, pose)),
-            pose_noise_seen_both_ways: both_ways(&as_seen(&result.vertices, result.pose, pose))?,
+            pose_noise_seen,
+            pose_noise_seen_both_ways: both_ways(&seen, pose_noise_seen)?,
             known_pose_loss,
             pose_noise_loss: final_loss(&result),
             rotation_error,
@@ -988,10 +991,11 @@ pub fn evaluate_instance(
     }
     progress(settings.trials, settings.trials);
     let stat = |of: fn(&Trial) -> f64| Stat::of(&trials.iter().map(of).collect::<Vec<_>>());
+    let oracle = error(&oracle_vertices);
     Ok(Row {
         category: category.into(),
         instance: name.into(),
-        oracle: error(&oracle_vertices),
+        oracle,
         space_optimum: optimum,
         oracle_chamfer: chamfer(&test_vertices, &oracle_vertices),
         known_pose: stat(|t| t.known_pose),
@@ -999,7 +1003,7 @@ pub fn evaluate_instance(
         pose_noise_worst: trials.iter().map(|t| t.pose_noise).fold(0.0, f64::max),
         pose_noise_placed: stat(|t| t.pose_noise_placed),
         pose_noise_seen: stat(|t| t.pose_noise_seen),
-        oracle_both_ways: both_ways(&oracle_vertices)?,
+        oracle_both_ways: both_ways(&oracle_vertices, oracle)?,
         pose_noise_seen_both_ways: stat(|t| t.pose_noise_seen_both_ways),
         pose_noise: stat(|t| t.pose_noise),
         pose_noise_chamfer: Stat::of(&noisy_ch),
