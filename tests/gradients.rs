@@ -422,8 +422,72 @@ fn with_depth(mut case: Case) -> Case {
             }
         }
     }
-    case.depth = Some((depth, DepthLoss::default()));
+    // The plain depth term: occlusion has its own test.
+    let loss = DepthLoss {
+        occlusion: 0.0,
+        ..DepthLoss::default()
+    };
+    case.depth = Some((depth, loss));
     case
+}
+
+/// Marks a band of columns (40% to 60% of the width) unknown in every view: it crosses
+/// the sphere's silhouette and the disc's edge.
+fn with_unknown_band(mut case: Case) -> Case {
+    let w = case.views[0].camera.width as usize;
+    let channels = case.observed.len() / (case.views.len() * w * w);
+    let ignore: Vec<f32> = (0..case.observed.len() / channels)
+        .map(|i| ((i % w) * 5 / w == 2) as u32 as f32)
+        .collect();
+    vkdr::loss::mark_unknown(&mut case.observed, channels, &ignore).unwrap();
+    case
+}
+
+/// The device's total loss of a case.
+fn device_loss(case: &Case) -> f64 {
+    let ctx = common::context();
+    let renderer = DiffRenderer::new(&ctx).unwrap();
+    let gpu = device_scene(&ctx, case).evaluate(&ctx, &renderer).unwrap();
+    gpu.loss.iter().map(|&l| l as f64).sum()
+}
+
+#[test]
+fn unknown_pixels_count_for_nothing() {
+    // The loss and its gradients over the known pixels only, exact at the band's borders
+    // (an antialiased pixel beside it still counts), for every loss and with depth.
+    for case in [
+        sphere_case(Loss::Mse, 0.1, 0.45, 48),
+        sphere_case(Loss::Iou, 0.1, 0.45, 48),
+        sphere_case(Loss::Distance, 0.1, 0.45, 48),
+        with_depth(sphere_case(Loss::Mse, 0.1, 0.45, 48)),
+    ] {
+        let hidden = with_unknown_band(case.clone());
+        let (all, part) = (device_loss(&case), device_loss(&hidden));
+        assert!(
+            (all - part).abs() > 1e-3 * all.abs(),
+            "{:?}: the band changed nothing ({all} and {part})",
+            case.loss
+        );
+        assert_gradients_match(&hidden);
+    }
+}
+
+#[test]
+fn occluded_pixels_count_for_nothing() {
+    // The observed depth is a plane in front of much of the sphere; where the disc mask
+    // is 0 and the plane is more than 1 cm nearer than the rendered surface, the plane
+    // hides the sphere: those pixels count for nothing, and the gradients stay exact.
+    let plain = with_depth(sphere_case(Loss::Mse, 0.1, 0.45, 48));
+    let mut occluded = plain.clone();
+    if let Some((_, loss)) = occluded.depth.as_mut() {
+        loss.occlusion = 0.01;
+    }
+    let (all, part) = (device_loss(&plain), device_loss(&occluded));
+    assert!(
+        part < all - 1e-3 * all,
+        "occlusion dropped no pixel ({all} and {part})"
+    );
+    assert_gradients_match(&occluded);
 }
 
 #[test]

@@ -141,29 +141,43 @@ fn depth_reads_as_metres_from_npy_and_millimetre_pngs_and_refuses_bad_values() {
     let npy = dir.join("depth.npy");
     let array = ndarray::Array2::from_shape_vec((h as usize, w as usize), metres.clone()).unwrap();
     ndarray_npy::write_npy(&npy, &array).unwrap();
-    assert_eq!(load_depth(&npy, w, h).unwrap(), metres);
+    assert_eq!(load_depth(&npy, w, h, 1.0).unwrap(), metres);
     // 16-bit PNG in millimetres.
     let png = dir.join("depth.png");
     let mm = image::ImageBuffer::<image::Luma<u16>, _>::from_fn(w, h, |x, y| {
         image::Luma([(metres[(y * w + x) as usize] * 1e3).round() as u16])
     });
     mm.save(&png).unwrap();
-    for (a, b) in load_depth(&png, w, h).unwrap().iter().zip(&metres) {
+    for (a, b) in load_depth(&png, w, h, 1.0).unwrap().iter().zip(&metres) {
         assert!((a - b).abs() <= 0.5e-3, "{a} m read for {b} m");
     }
+    // The same depths in tenths of a millimetre (BOP's depth_scale 0.1).
+    let tenths = dir.join("tenths.png");
+    image::ImageBuffer::<image::Luma<u16>, _>::from_fn(w, h, |x, y| {
+        image::Luma([(metres[(y * w + x) as usize] * 1e4).round() as u16])
+    })
+    .save(&tenths)
+    .unwrap();
+    for (a, b) in load_depth(&tenths, w, h, 0.1).unwrap().iter().zip(&metres) {
+        assert!((a - b).abs() <= 0.5e-4, "{a} m read for {b} m");
+    }
+    for bad in [0.0, -1.0, f64::NAN] {
+        let err = load_depth(&tenths, w, h, bad).unwrap_err().to_string();
+        assert!(err.contains("depth scale"), "{err}");
+    }
     // Wrong size, 8-bit PNG, a negative depth, NaN, a header claiming a huge array.
-    let err = load_depth(&npy, h, w).unwrap_err().to_string();
+    let err = load_depth(&npy, h, w, 1.0).unwrap_err().to_string();
     assert!(err.contains("--size"), "{err}");
     let grey8 = dir.join("grey8.png");
     image::GrayImage::new(w, h).save(&grey8).unwrap();
-    let err = load_depth(&grey8, w, h).unwrap_err().to_string();
+    let err = load_depth(&grey8, w, h, 1.0).unwrap_err().to_string();
     assert!(err.contains("16-bit"), "{err}");
     for bad in [-0.1f32, f32::NAN] {
         let mut values = metres.clone();
         values[7] = bad;
         let array = ndarray::Array2::from_shape_vec((h as usize, w as usize), values).unwrap();
         ndarray_npy::write_npy(&npy, &array).unwrap();
-        let err = load_depth(&npy, w, h).unwrap_err().to_string();
+        let err = load_depth(&npy, w, h, 1.0).unwrap_err().to_string();
         assert!(err.contains("row 1 column 2"), "{err}");
     }
     let mut huge = b"\x93NUMPY\x01\x00".to_vec();
@@ -171,7 +185,7 @@ fn depth_reads_as_metres_from_npy_and_millimetre_pngs_and_refuses_bad_values() {
     huge.extend((header.len() as u16).to_le_bytes());
     huge.extend(header);
     std::fs::write(&npy, &huge).unwrap();
-    let err = load_depth(&npy, w, h).unwrap_err().to_string();
+    let err = load_depth(&npy, w, h, 1.0).unwrap_err().to_string();
     assert!(err.contains("declares shape (1000000000000, 3)"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }

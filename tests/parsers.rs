@@ -172,7 +172,7 @@ proptest! {
             prop_assert_eq!(mask.len(), (w * h) as usize);
             prop_assert!(mask.iter().all(|&m| m == 0.0 || m == 1.0));
         }
-        if let Ok(depth) = vkdr::loss::load_depth(&path, w, h) {
+        if let Ok(depth) = vkdr::loss::load_depth(&path, w, h, 1.0) {
             prop_assert_eq!(kind, 1);
             prop_assert!(depth.iter().all(|&z| z >= 0.0 && z.is_finite()));
         }

@@ -89,6 +89,7 @@ layout(push_constant, std430) uniform Constants {
     uint stage;     // bounds.comp's stage (antialias.comp and classify.comp: STAGE)
     float depth_scale;   // metres: residuals up to it cost quadratically (Huber)
     float depth_weight;
+    float occlusion;     // metres: a covered background pixel measured nearer is occluded (loss.glsl)
 } pc;
 
 // What the scene compares, as specialization constants (ids 1 to 4; a pipeline per

@@ -7,7 +7,7 @@
 // The including shader declares, before the include: the buffers observed[],
 // antialiased[], distance_field[], stats[] and ids[], the specialization constants LOSS,
 // CHANNELS and DEPTH, the push constants pc.depth_scale, pc.depth_weight, pc.width,
-// pc.height; and image_channels() (shade.glsl).
+// pc.height, pc.occlusion; and image_channels() (shade.glsl).
 #include "loss_codes.glsl"
 
 // As `MAX_DEPTH_RESIDUAL` in src/diff/mod.rs (metres).
@@ -49,6 +49,24 @@ float depth_term_gradient(float r, float n) {
     return pc.depth_weight * 2.0 * clamp(r / pc.depth_scale, -1.0, 1.0) / (pc.depth_scale * n);
 }
 
+// Pixels that count for nothing, neither mask (or shading) nor depth:
+// - unknown ones, where the observation's channel 0 is below 0 (`loss::UNKNOWN`: hidden
+//   by something in front, as outside BOP's mask_visib but inside its mask, or ignored);
+// - with depth and pc.occlusion > 0 (metres), covered pixels that the observation shows
+//   as background (channel 0 is 0) with a measured depth nearer than the rendered surface
+//   by more than pc.occlusion: something stands in front of the object there. A pixel the
+//   mask shows as object is never occluded, so its depth term pulls even from far off.
+// Both are zero terms and zero gradients, so the gradients of the other pixels (the
+// antialiased pixels at the border of an ignored region included) stay exact; the
+// occluded set changes with the rendered depth (piecewise, as visibility does).
+bool unknown(uint index) { return observed[index * image_channels()] < 0.0; }
+
+bool occluded(uint index, vec4 a) {
+    if (DEPTH == 0u || pc.occlusion <= 0.0 || ids[index] == 0u) return false;
+    float o = observed[index * CHANNELS + CHANNELS - 1u];
+    return observed[index * CHANNELS] == 0.0 && o > 0.0 && a[CHANNELS - 1u] - o > pc.occlusion;
+}
+
 vec4 load_antialiased(uint index) {
     vec4 a = vec4(0.0);
     for (uint ch = 0u; ch < image_channels(); ++ch) a[ch] = antialiased[index * image_channels() + ch];
@@ -66,6 +84,7 @@ vec4 load_observed(uint index) {
 // observation (classify.comp stage 1); every evaluation adds, for the pixels near the
 // object, what its value changes: loss_excess.
 vec3 loss_terms(uint index, vec4 a) {
+    if (unknown(index)) return vec3(0.0);
     vec4 o = load_observed(index);
     float n = float(pc.width * pc.height);
     if (LOSS == LOSS_MSE) {
@@ -78,8 +97,11 @@ vec3 loss_terms(uint index, vec4 a) {
     return vec3(a.x * distance_field[index] / n, 0.0, 0.0);
 }
 
-// loss_terms(index, a) - loss_terms(index, 0), in forms without cancellation.
+// loss_terms(index, a) - loss_terms(index, 0), in forms without cancellation (at an
+// occluded pixel, which counts for nothing, minus the background's terms).
 vec3 loss_excess(uint index, vec4 a) {
+    if (unknown(index)) return vec3(0.0);
+    if (occluded(index, a)) return -loss_terms(index, vec4(0.0));
     vec4 o = load_observed(index);
     float n = float(pc.width * pc.height);
     if (LOSS == LOSS_MSE) {
@@ -98,8 +120,9 @@ vec3 loss_excess(uint index, vec4 a) {
 vec4 loss_gradient(uint index, uint view) {
     float n = float(pc.width * pc.height);
     vec4 a = load_antialiased(index);
-    vec4 o = load_observed(index);
     vec4 g = vec4(0.0);
+    if (unknown(index) || occluded(index, a)) return g;
+    vec4 o = load_observed(index);
     if (LOSS == LOSS_MSE) {
         g = 2.0 * blended(a - o) / (n * float(mse_channels()));
         float r;
@@ -119,6 +142,7 @@ vec4 loss_gradient(uint index, uint view) {
 // antialias.comp after the value A is known) give loss_bound, a bound on |dL/dA| at every
 // listed pixel for the backward's fixed-point scale (diff_pass.glsl gradient_bounds).
 vec2 loss_magnitudes(uint index, vec4 a) {
+    if (unknown(index) || occluded(index, a)) return vec2(0.0);
     float n = float(pc.width * pc.height);
     vec4 o = load_observed(index);
     if (LOSS == LOSS_MSE) {

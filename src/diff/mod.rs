@@ -232,20 +232,28 @@ pub struct DepthLoss {
     /// Weight against the mask (or shading) term: at 1, a pixel whose depth is off by
     /// `scale` costs as much as a pixel of mask that is wrong.
     pub weight: f64,
+    /// Metres (0: off): a rendered pixel that the observation shows as background, with a
+    /// measured depth nearer than the rendered surface by more than this, is hidden by
+    /// something in front (an occluder outside the instance mask) and counts for nothing,
+    /// neither mask nor depth. Pixels the observation shows as object always count.
+    pub occlusion: f64,
 }
 
 impl Default for DepthLoss {
-    /// 1 cm, weight 1: a consumer RGB-D sensor's noise at half a metre is a few mm.
+    /// 1 cm, weight 1: a consumer RGB-D sensor's noise at half a metre is a few mm;
+    /// occluders 2 cm in front of the rendered surface.
     fn default() -> Self {
         Self {
             scale: 0.01,
             weight: 1.0,
+            occlusion: 0.02,
         }
     }
 }
 
 impl DepthLoss {
-    /// An error for a scale or weight that is not positive and finite.
+    /// An error for a scale or weight that is not positive and finite, or an occlusion
+    /// tolerance that is negative or not finite.
     pub fn validate(&self) -> Result<()> {
         for (what, value) in [("scale", self.scale), ("weight", self.weight)] {
             if !(value.is_finite() && value > 0.0) {
@@ -253,6 +261,12 @@ impl DepthLoss {
                     "the depth loss {what} must be positive and finite, not {value}"
                 )));
             }
+        }
+        if !(self.occlusion.is_finite() && self.occlusion >= 0.0) {
+            return Err(Error::InvalidInput(format!(
+                "the occlusion tolerance must be >= 0 m (0: off) and finite, not {}",
+                self.occlusion
+            )));
         }
         Ok(())
     }
@@ -301,6 +315,7 @@ struct PassConstants {
     stage: u32,
     depth_scale: f32,
     depth_weight: f32,
+    occlusion: f32,
 }
 const _: () = assert!(shaders::CLASSIFY_COMP.takes::<PassConstants>());
 const _: () = assert!(shaders::ANTIALIAS_COMP.takes::<PassConstants>());
@@ -937,6 +952,7 @@ impl Scene {
             stage,
             depth_scale: self.depth.map_or(1.0, |d| d.scale as f32),
             depth_weight: self.depth.map_or(0.0, |d| d.weight as f32),
+            occlusion: self.depth.map_or(0.0, |d| d.occlusion as f32),
         }
     }
 

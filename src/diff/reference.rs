@@ -394,22 +394,52 @@ pub fn evaluate(problem: &Problem, positions: &[DVec3], poses: &[RigidPose]) -> 
         } else {
             &[][..]
         };
-        let mut view_loss = loss_reference::loss(problem.loss, &a, observed, distance, channels);
+        // Pixels that count for nothing (as `unknown` and `occluded` in
+        // glsl/include/loss.glsl): an observed channel 0 below 0, or with depth a covered
+        // pixel observed as background whose measured depth is nearer than the rendered
+        // surface by more than the occlusion tolerance.
+        let (width, height) = (camera.width as usize, camera.height as usize);
+        let rendered_depth = |x: usize, y: usize| {
+            let id = model.id((x, y));
+            (id != 0).then(|| model.depth(id as usize - 1, model.ndc((x, y))))
+        };
+        let counted: Vec<bool> = (0..n)
+            .map(|i| {
+                let o = observed[i * channels];
+                if o < 0.0 {
+                    return false;
+                }
+                let Some((depth, loss)) = problem.depth else {
+                    return true;
+                };
+                let measured = depth[offset_ids + i];
+                let occluded = loss.occlusion > 0.0
+                    && o == 0.0
+                    && measured > 0.0
+                    && rendered_depth(i % width, i / width)
+                        .is_some_and(|z| z - measured > loss.occlusion);
+                !occluded
+            })
+            .collect();
+        let keep = |values: &[f64]| -> Vec<f64> {
+            values
+                .chunks(channels)
+                .zip(&counted)
+                .flat_map(|(v, &c)| v.iter().map(move |&x| if c { x } else { 0.0 }))
+                .collect()
+        };
+        let mut view_loss =
+            loss_reference::loss(problem.loss, &keep(&a), &keep(observed), distance, channels);
         match problem.depth {
             None => antialiased.extend(a),
             Some((depth, loss)) => {
                 let depth = &depth[offset_ids..offset_ids + n];
-                let (width, height) = (camera.width as usize, camera.height as usize);
                 for y in 0..height {
                     for x in 0..width {
                         let i = y * width + x;
                         let id = model.id((x, y));
-                        let z = if id == 0 {
-                            0.0
-                        } else {
-                            model.depth(id as usize - 1, model.ndc((x, y)))
-                        };
-                        if id != 0 && depth[i] > 0.0 {
+                        let z = rendered_depth(x, y).unwrap_or(0.0);
+                        if id != 0 && depth[i] > 0.0 && counted[i] {
                             view_loss += depth_term(&loss, z - depth[i], n as f64);
                         }
                         antialiased.extend_from_slice(&a[i * channels..(i + 1) * channels]);

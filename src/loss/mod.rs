@@ -63,6 +63,32 @@ impl std::str::FromStr for Loss {
     }
 }
 
+/// The observed value of a pixel whose content is unknown (channel 0 of an observed image
+/// below 0): hidden by something in front of the object, as the pixels outside BOP's
+/// `mask_visib` but inside its `mask`, or ignored by the user. Such a pixel counts for
+/// nothing, neither mask (or shading) nor depth, and the gradients of the others stay
+/// exact (`glsl/include/loss.glsl`, `unknown`).
+pub const UNKNOWN: f32 = -1.0;
+
+/// Marks the pixels where `ignore` is nonzero as [`UNKNOWN`] in `image`, an observed image
+/// of `channels` values per pixel in the same layout (`[view][row][column][channel]`).
+/// An error if the sizes disagree.
+pub fn mark_unknown(image: &mut [f32], channels: usize, ignore: &[f32]) -> Result<()> {
+    if channels == 0 || image.len() != ignore.len() * channels {
+        return Err(Error::InvalidInput(format!(
+            "an ignore mask of {} pixels for an image of {} values ({channels} per pixel)",
+            ignore.len(),
+            image.len()
+        )));
+    }
+    for (pixel, &i) in image.chunks_mut(channels).zip(ignore) {
+        if i != 0.0 {
+            pixel.fill(UNKNOWN);
+        }
+    }
+    Ok(())
+}
+
 /// Reads a mask PNG of `width` x `height`, row-major. Where the image has an alpha channel
 /// that is used (some pixel not fully opaque), alpha is the mask: 1 where it is nonzero (a
 /// cut-out, whatever its colour). Otherwise (no alpha, or opaque everywhere, as many tools
@@ -102,9 +128,16 @@ fn open_image(path: &Path, what: &str, width: u32, height: u32) -> Result<image:
 }
 
 /// Reads an observed depth image of `width` x `height` as metres, row-major: a `.npy` of
-/// float32 or float64 metres (H x W), or a 16-bit grey PNG of millimetres. 0 is no
-/// measurement; a negative or non-finite value is an error (never silently a hole).
-pub fn load_depth(path: &Path, width: u32, height: u32) -> Result<Vec<f32>> {
+/// float32 or float64 metres (H x W), or a 16-bit grey PNG whose value times
+/// `png_millimetres` is millimetres (BOP's `depth_scale`: 1 for millimetres, 0.1 for
+/// tenths). 0 is no measurement; a negative or non-finite value is an error (never
+/// silently a hole).
+pub fn load_depth(path: &Path, width: u32, height: u32, png_millimetres: f64) -> Result<Vec<f32>> {
+    if !(png_millimetres.is_finite() && png_millimetres > 0.0) {
+        return Err(Error::InvalidInput(format!(
+            "the depth scale must be positive millimetres per PNG unit, not {png_millimetres}"
+        )));
+    }
     let is_npy = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("npy"));
@@ -137,7 +170,10 @@ pub fn load_depth(path: &Path, width: u32, height: u32) -> Result<Vec<f32>> {
     } else {
         match open_image(path, "depth image", width, height)? {
             image::DynamicImage::ImageLuma16(grey) => {
-                grey.pixels().map(|p| p.0[0] as f32 * 1e-3).collect()
+                let metres = png_millimetres * 1e-3;
+                grey.pixels()
+                    .map(|p| (p.0[0] as f64 * metres) as f32)
+                    .collect()
             }
             other => {
                 return Err(Error::format(

@@ -88,17 +88,23 @@ impl ViewArgs {
 pub struct DepthLossArgs {
     /// Depth residuals up to this (metres) cost quadratically, beyond linearly (Huber).
     #[arg(long, allow_negative_numbers = true, default_value_t = vkdr::diff::DepthLoss::default().scale)]
-    pub depth_scale: f64,
+    pub depth_huber: f64,
     /// Weight of the depth term against the mask (or shading) term.
     #[arg(long, allow_negative_numbers = true, default_value_t = vkdr::diff::DepthLoss::default().weight)]
     pub depth_weight: f64,
+    /// Metres: a rendered pixel outside the observed mask whose measured depth is nearer
+    /// than the rendered surface by more than this is hidden by something in front and
+    /// counts for nothing (0: off).
+    #[arg(long, allow_negative_numbers = true, default_value_t = vkdr::diff::DepthLoss::default().occlusion)]
+    pub occlusion: f64,
 }
 
 impl DepthLossArgs {
     pub fn loss(&self) -> Result<vkdr::diff::DepthLoss> {
         let loss = vkdr::diff::DepthLoss {
-            scale: self.depth_scale,
+            scale: self.depth_huber,
             weight: self.depth_weight,
+            occlusion: self.occlusion,
         };
         loss.validate()?;
         Ok(loss)

@@ -40,9 +40,20 @@ pub struct Args {
     #[command(flatten)]
     shading: ShadingArgs,
     /// With --observed: the observed depth, a .npy of float32 metres (H x W) or a 16-bit grey
-    /// PNG of millimetres; 0 = no measurement. Compared inside the silhouette.
+    /// PNG in units of --depth-scale millimetres; 0 = no measurement. Compared inside the
+    /// silhouette.
     #[arg(long, requires = "observed")]
     observed_depth: Option<PathBuf>,
+    /// Millimetres per unit of a depth PNG, as BOP's `depth_scale` (a PNG value times it is
+    /// millimetres; 0.1 for sensors that store tenths of a millimetre). The Huber scale of
+    /// the depth term is --depth-huber.
+    #[arg(long, requires = "observed_depth")]
+    depth_scale: Option<f64>,
+    /// With --observed: a PNG of the pixels whose content is unknown (nonzero: hidden by
+    /// something in front of the object, as outside BOP's mask_visib but inside its mask);
+    /// they count for nothing, neither mask nor depth.
+    #[arg(long, requires = "observed")]
+    ignore: Option<PathBuf>,
     /// With --observed-mesh: observe its rendered depth too.
     #[arg(long, requires = "observed_mesh")]
     depth: bool,
@@ -214,10 +225,17 @@ fn from_files(args: &Args, view: View, further: &[FurtherView]) -> Result<eval::
         let Some(mask) = mask else {
             bail!("view {v} of the views file has no \"mask\" (needed with --observed)");
         };
-        let mask = loss::load_mask(&mask, w, h)?;
+        let mut mask = loss::load_mask(&mask, w, h)?;
+        let ignore = match (&args.ignore, v) {
+            (Some(path), 0) => Some(loss::load_mask(path, w, h)?),
+            _ => None,
+        };
+        if let Some(ignore) = &ignore {
+            loss::mark_unknown(&mut mask, 1, ignore)?;
+        }
         if let Some(all) = observed.depth.as_mut() {
             match depth {
-                Some(path) => all.extend(loss::load_depth(&path, w, h)?),
+                Some(path) => all.extend(load_depth(args, &path, w, h)?),
                 None => all.extend(std::iter::repeat_n(0.0, mask.len())),
             }
         }
@@ -230,11 +248,62 @@ fn from_files(args: &Args, view: View, further: &[FurtherView]) -> Result<eval::
                     format!("--shading: view {v} of the views file has no \"shading\" image")
                 });
             };
-            all.extend(loss::load_shading(&path, &mask, w, h)?);
+            let mut shaded = loss::load_shading(&path, &mask, w, h)?;
+            if let Some(ignore) = &ignore {
+                loss::mark_unknown(&mut shaded, 1, ignore)?;
+            }
+            all.extend(shaded);
         }
         observed.mask.extend(mask);
     }
     Ok(observed)
+}
+
+/// A depth image in metres: a `.npy` as it is, a PNG times --depth-scale millimetres.
+fn load_depth(args: &Args, path: &Path, w: u32, h: u32) -> Result<Vec<f32>> {
+    let is_png = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("png"));
+    let scale = match (args.depth_scale, is_png) {
+        (Some(_), false) => bail!(
+            "--depth-scale (millimetres per unit of a depth PNG) does not apply to {}, which \
+             holds metres; the Huber scale of the depth term is --depth-huber",
+            path.display()
+        ),
+        (scale, _) => scale.unwrap_or(1.0),
+    };
+    Ok(loss::load_depth(path, w, h, scale)?)
+}
+
+/// Warns when the observed depth and the mask's size disagree with the shape space by
+/// about an order of magnitude (a depth in other units than declared): the mask's size
+/// in metres at the measured depth against the canonical's two longest extents.
+fn check_depth_units(space: &ShapeSpace, camera: &Camera, mask: &[f32], depth: &[f32]) {
+    let mut measured: Vec<f32> = mask
+        .iter()
+        .zip(depth)
+        .filter(|&(&m, &z)| m > 0.0 && z > 0.0)
+        .map(|(_, &z)| z)
+        .collect();
+    if measured.is_empty() {
+        return;
+    }
+    measured.sort_by(f32::total_cmp);
+    let z = measured[measured.len() / 2] as f64;
+    let pixels = mask.iter().filter(|&&m| m > 0.0).count() as f64;
+    let seen = pixels.sqrt() * z / (camera.fx * camera.fy).sqrt();
+    let (lo, hi) = space.canonical.bounds();
+    let mut extents: Vec<f64> = (0..3).map(|k| (hi[k] - lo[k]) as f64).collect();
+    extents.sort_by(f64::total_cmp);
+    let expected = (extents[1] * extents[2]).sqrt();
+    let ratio = seen / expected;
+    if !(0.25..=4.0).contains(&ratio) {
+        eprintln!(
+            "warning: at the measured depth (median {z:.3} m) the mask is about {seen:.3} m \
+             across, {ratio:.2}x the shape space's canonical ({expected:.3} m): is the depth in \
+             the units declared (a depth PNG times --depth-scale is millimetres)?"
+        );
+    }
 }
 
 /// The observation rendered from a test mesh at the true pose, in every view.
@@ -289,6 +358,10 @@ pub fn run(args: &Args) -> Result<()> {
             rendered(&ctx, args, mesh, truth, &others)?
         }
     };
+    if let Some(depth) = &observed.depth {
+        let n = (view.camera.width * view.camera.height) as usize;
+        check_depth_units(&space, &view.camera, &observed.mask[..n], &depth[..n]);
+    }
     // With the pose: the schedule of `vkdr eval` (pose alone first, then both).
     let settings = EvalSettings::default();
     let base = if args.optimize_pose {

@@ -401,8 +401,48 @@ fn bad_input_exits_non_zero_naming_the_problem_and_keeps_existing_files() {
             "--up must be a nonzero direction",
         ),
         case(
-            &register(&["--depth", "--depth-scale", "0"]),
+            &register(&["--depth", "--depth-huber", "0"]),
             "depth loss scale",
+        ),
+        case(
+            &register(&["--depth", "--occlusion", "-0.01"]),
+            "occlusion tolerance must be >= 0 m",
+        ),
+        case(
+            &with(&[
+                &[
+                    "register",
+                    "--space",
+                    "space.npz",
+                    "--observed",
+                    "mask64x48.png",
+                    "--observed-depth",
+                    "negative_depth.npy",
+                    "--depth-scale",
+                    "0.1",
+                ],
+                CAMERA,
+                POSE,
+                &["--out", "OUT"],
+            ]),
+            "does not apply to negative_depth.npy, which holds metres",
+        ),
+        case(
+            &with(&[
+                &[
+                    "register",
+                    "--space",
+                    "space.npz",
+                    "--observed",
+                    "mask64x48.png",
+                    "--ignore",
+                    "mask20x10.png",
+                ],
+                CAMERA,
+                POSE,
+                &["--out", "OUT"],
+            ]),
+            "mask20x10.png: mask is 20x10 but --size is 64x48",
         ),
         case(&register(&["--iterations", "1000000"]), "at most 100000"),
         case(
