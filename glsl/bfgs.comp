@@ -46,7 +46,7 @@ layout(push_constant, std430) uniform Constants {
     float rotation_step;     // radians
     uint max_iterations;
     uint pose_only;      // 1: the latent code stays where it is (pose alignment)
-    float code_prior;    // weight of |z|^2 joining the loss (RegisterParams::code_prior)
+    float code_prior;    // weight of the code prior (RegisterParams::code_prior; objective.glsl)
     // The state's layout (register::StateLayout): float offsets.
     uint latent_at;
     uint velocity_at;
@@ -63,8 +63,12 @@ layout(push_constant, std430) uniform Constants {
     uint accepted_grad_at;
     uint h_at;
     uint scratch_at;
+    uint prior_at;
+    uint gravity_at;
     uint state_len;
 } pc;
+
+#include "objective.glsl"
 
 const uint ITERATION = 0u;
 const uint MAX_N = 64u;
@@ -167,9 +171,10 @@ void direction(float g[MAX_N], out float d[MAX_N]) {
 void main() {
     uint t = uint(state[ITERATION]);
     uint count = n();
-    // The objective: the images' loss plus the code prior.
-    float loss = stats[3];
-    for (uint i = 0u; i < pc.dims; ++i) loss += pc.code_prior * state[pc.latent_at + i] * state[pc.latent_at + i];
+    // The objective: the images' loss, the code prior and gravity (objective.glsl), at
+    // the point the images were rendered at.
+    mat3 rotation = mat3(views[0].object_to_camera);
+    float loss = stats[3] + prior_term() + gravity_term(rotation);
     if (t < pc.max_iterations) state[pc.losses_at + t] = loss;
 
     if (t == 0u) {
@@ -187,9 +192,9 @@ void main() {
     // left increment of the current rotation).
     float g[MAX_N];
     vec3 w = vec3(state[pc.pose_x_at + 3u], state[pc.pose_x_at + 4u], state[pc.pose_x_at + 5u]);
-    vec3 gw = transpose(left_jacobian(w)) * vec3(grad_pose[3], grad_pose[4], grad_pose[5]);
+    vec3 gw = transpose(left_jacobian(w)) * (vec3(grad_pose[3], grad_pose[4], grad_pose[5]) + gravity_gradient(rotation));
     for (uint i = 0u; i < count; ++i) {
-        float v = i < pc.dims ? grad_latent[i] + 2.0 * pc.code_prior * state[pc.latent_at + i]
+        float v = i < pc.dims ? grad_latent[i] + prior_gradient(i)
             : (i < pc.dims + 3u ? grad_pose[i - pc.dims] : gw[i - pc.dims - 3u]);
         g[i] = moves(i) ? v : 0.0;
     }

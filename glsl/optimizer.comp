@@ -29,7 +29,7 @@ layout(push_constant, std430) uniform Constants {
     float rotation_step;     // radians
     uint max_iterations;
     uint pose_only;      // 1: the latent code stays where it is (pose alignment)
-    float code_prior;    // weight of |z|^2 joining the loss (RegisterParams::code_prior)
+    float code_prior;    // weight of the code prior (RegisterParams::code_prior; objective.glsl)
     // The state's layout (register::StateLayout): float offsets.
     uint latent_at;
     uint velocity_at;
@@ -46,8 +46,12 @@ layout(push_constant, std430) uniform Constants {
     uint accepted_grad_at;
     uint h_at;
     uint scratch_at;
+    uint prior_at;
+    uint gravity_at;
     uint state_len;
 } pc;
+
+#include "objective.glsl"
 
 // Offsets into `state`.
 const uint ITERATION = 0u;
@@ -58,29 +62,32 @@ const uint POSE_STEPS = 4u;
 
 void main() {
     uint t = uint(state[ITERATION]);
-    // The objective: the images' loss plus the code prior.
-    float loss = stats[3];
-    for (uint j = 0u; j < pc.dims; ++j) loss += pc.code_prior * state[pc.latent_at + j] * state[pc.latent_at + j];
+    // The objective: the images' loss, the code prior and gravity (objective.glsl).
+    mat3 rotation = mat3(views[0].object_to_camera);
+    float loss = stats[3] + prior_term() + gravity_term(rotation);
     if (t < pc.max_iterations) state[pc.losses_at + t] = loss;
     float decay = pow(pc.decay, float(t));
     bool shape = pc.pose_only == 0u;
 
-    // Latent code.
+    // Latent code: the gradients (the prior's at the code before this step) go into the
+    // moments first, then every coordinate steps.
     float norm = 0.0;
     for (uint j = 0u; j < pc.dims; ++j) {
-        float g = grad_latent[j] + 2.0 * pc.code_prior * state[pc.latent_at + j];
+        float g = grad_latent[j] + prior_gradient(j);
         norm += g * g;
     }
     norm = sqrt(norm);
     if (t == 0u) state[LR_LATENT] = norm > 0.0 ? pc.latent_step / norm : 0.0;
     for (uint j = 0u; j < pc.dims && shape; ++j) {
-        float g = grad_latent[j] + 2.0 * pc.code_prior * state[pc.latent_at + j];
-        float v = pc.momentum * state[pc.velocity_at + j] + g;
-        state[pc.velocity_at + j] = v;
+        float g = grad_latent[j] + prior_gradient(j);
+        state[pc.velocity_at + j] = pc.momentum * state[pc.velocity_at + j] + g;
+        if (pc.adam != 0u) state[pc.second_moment_at + j] = 0.999 * state[pc.second_moment_at + j] + 0.001 * g * g;
+    }
+    for (uint j = 0u; j < pc.dims && shape; ++j) {
+        float v = state[pc.velocity_at + j];
         float step = state[LR_LATENT] * decay * v;
         if (pc.adam != 0u) {
-            float m2 = 0.999 * state[pc.second_moment_at + j] + 0.001 * g * g;
-            state[pc.second_moment_at + j] = m2;
+            float m2 = state[pc.second_moment_at + j];
             float m1 = v * (1.0 - pc.momentum);
             float bias1 = 1.0 - pow(pc.momentum, float(t + 1u));
             float bias2 = 1.0 - pow(0.999, float(t + 1u));
@@ -98,7 +105,7 @@ void main() {
     bool pose_step = !shape || (t + 1u) % pc.pose_every == 0u;
     if (pc.pose_every > 0u && pose_step) {
         vec3 gt = vec3(grad_pose[0], grad_pose[1], pc.optimize_z != 0u ? grad_pose[2] : 0.0);
-        vec3 gr = vec3(grad_pose[3], grad_pose[4], grad_pose[5]);
+        vec3 gr = vec3(grad_pose[3], grad_pose[4], grad_pose[5]) + gravity_gradient(rotation);
         uint k = uint(state[POSE_STEPS]);
         if (k == 0u) {
             state[LR_TRANSLATION] = length(gt) > 0.0 ? pc.translation_step / length(gt) : 0.0;

@@ -106,6 +106,7 @@ pub mod register;
 pub mod rng;
 pub mod shaders;
 pub mod shape;
+pub mod support;
 
 pub use camera::{Camera, Pose};
 pub use error::{Error, Result};

@@ -201,6 +201,27 @@ impl ShapeSpace {
         self.basis.len()
     }
 
+    /// The standard deviation of each latent dimension over the training codes (which
+    /// are centred: PCA of the centred W), never below 1e-12.
+    pub fn code_deviations(&self) -> Vec<f64> {
+        let t = (self.training_codes.len() as f64 - 1.0).max(1.0);
+        (0..self.dims())
+            .map(|j| {
+                let var = self.training_codes.iter().map(|c| c[j] * c[j]).sum::<f64>() / t;
+                var.sqrt().max(1e-12)
+            })
+            .collect()
+    }
+
+    /// A latent code in training standard deviations (each dimension over
+    /// [`ShapeSpace::code_deviations`]): where a code lies against the training spread.
+    pub fn code_in_deviations(&self, s: &[f64]) -> Vec<f64> {
+        s.iter()
+            .zip(self.code_deviations())
+            .map(|(v, d)| v / d)
+            .collect()
+    }
+
     /// Vertices of the deformed canonical mesh for latent code `s`: C + d0 + B s.
     pub fn vertices(&self, s: &[f64]) -> Result<Vec<DVec3>> {
         if s.len() != self.dims() {

@@ -77,13 +77,16 @@ pub struct RegisterParams {
     /// Compare each job's observed depth too (the pose alignment does not); the loss
     /// must be mse. With depth the z translation is observed: set `optimize_z`.
     pub depth: Option<DepthLoss>,
-    /// Weight of a Gaussian prior on the code: `code_prior * |z|^2` joins the loss, z the
-    /// optimiser's code coordinates (for BFGS orthogonal in vertex space and one RMS
-    /// training deformation long, for SGD and Adam the training standard deviations), so
-    /// a typical training shape costs about the weight. It decides what the images leave
-    /// open, such as a shape shifted in its own frame against a shifted pose. 0 (the
-    /// default): none.
+    /// Weight of a Gaussian prior on the code: `code_prior * |s|^2` joins the loss, s the
+    /// code in training standard deviations (each dimension over its spread in the
+    /// training set), so a typical training shape costs about the weight times the
+    /// dimensions. It decides what the images leave open, such as a shape shifted in its
+    /// own frame against a shifted pose. 0 (the default): none.
     pub code_prior: f64,
+    /// Fit one uniform scale of the shape too (an instance larger or smaller than the
+    /// training set's), within [`SCALE_RANGE`]: observable where depth or a further view
+    /// tells the distance; from one mask a scale trades against the distance.
+    pub optimize_scale: bool,
     /// Read the loss back every this many iterations; stop when it improved by less than
     /// `plateau` (relative) over the last chunk.
     pub check_every: usize,
@@ -177,6 +180,7 @@ impl Default for RegisterParams {
             shading: None,
             depth: None,
             code_prior: 0.0,
+            optimize_scale: false,
             check_every: 10,
             plateau: 1e-4,
         }
@@ -224,6 +228,13 @@ pub struct Registration {
     /// Code coordinates on the optimiser's bound at the end (+-[`CODE_BOUND`] in its
     /// coordinates).
     pub on_bound: usize,
+    /// The uniform scale of the shape (1 unless [`RegisterParams::optimize_scale`]):
+    /// `vertices` are the deformed canonical times it.
+    pub scale: f64,
+    /// The objective at the returned code and pose (for BFGS its last accepted point,
+    /// which `losses` may follow with a rejected trial; for SGD and Adam the last loss
+    /// evaluated, before the last step).
+    pub loss: f64,
 }
 
 /// The turns (radians) of [`turned_starts`]: 0, +`step`, -`step`, +2 `step`, -2 `step`,
@@ -256,6 +267,76 @@ pub fn turned_starts(pose: Pose, up: DVec3, count: usize, step: f64) -> Vec<Pose
             }
         })
         .collect()
+}
+
+/// The range of [`RegisterParams::optimize_scale`]'s scale: its optimiser coordinate is
+/// bounded as a code coordinate is (+-[`CODE_BOUND`]), one unit a sixth of the size.
+pub const SCALE_RANGE: (f64, f64) = (1.0 - CODE_BOUND * SCALE_UNIT, 1.0 + CODE_BOUND * SCALE_UNIT);
+/// The relative scale of one optimiser unit of the scale coordinate.
+const SCALE_UNIT: f64 = 1.0 / 6.0;
+
+/// Per squared radian of tilt past [`Gravity::tolerance`], as the optimisers add it to the
+/// loss (`glsl/include/objective.glsl`, GRAVITY_WEIGHT).
+pub const GRAVITY_WEIGHT: f64 = 100.0;
+
+/// Which way is up: a robot knows it from its table plane or its IMU. The registration
+/// keeps the object's up axis within `tolerance` of `direction` (a loss of
+/// [`GRAVITY_WEIGHT`] per squared radian beyond it), and starts levelled; the rotation
+/// about the up axis stays free.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Gravity {
+    /// The object's up axis in its own frame (the category's, `info.json`'s `up_axis`).
+    pub up: DVec3,
+    /// Up in the (first) camera's frame: the support plane's normal, away from it.
+    pub direction: DVec3,
+    /// Radians of tilt that cost nothing.
+    pub tolerance: f64,
+}
+
+impl Gravity {
+    /// An error for a zero or non-finite axis or direction, or a tolerance outside
+    /// [0, pi/2).
+    pub fn validate(&self) -> Result<()> {
+        for (what, v) in [("up axis", self.up), ("gravity direction", self.direction)] {
+            if !(v.is_finite() && v.length() > 0.0) {
+                return Err(Error::InvalidInput(format!(
+                    "the {what} must be a nonzero direction, not {v}"
+                )));
+            }
+        }
+        if !(self.tolerance.is_finite()
+            && (0.0..std::f64::consts::FRAC_PI_2).contains(&self.tolerance))
+        {
+            return Err(Error::InvalidInput(format!(
+                "the tilt tolerance must be in [0, 90) degrees, not {} rad",
+                crate::error::show(self.tolerance)
+            )));
+        }
+        Ok(())
+    }
+
+    /// The angle (radians) between the object's up axis at `pose` and up.
+    pub fn tilt(&self, pose: &Pose) -> f64 {
+        let v = pose.rotation_matrix() * self.up.normalize();
+        v.dot(self.direction.normalize()).clamp(-1.0, 1.0).acos()
+    }
+
+    /// `pose` turned by the least rotation (about the object's origin) that makes its up
+    /// axis point up; a pose within the tolerance stays as it is.
+    pub fn level(&self, pose: Pose) -> Pose {
+        if self.tilt(&pose) <= self.tolerance {
+            return pose;
+        }
+        let r = pose.rotation_matrix();
+        let turn = glam::DQuat::from_rotation_arc(
+            (r * self.up.normalize()).normalize(),
+            self.direction.normalize(),
+        );
+        Pose {
+            translation: pose.translation,
+            rotation: glam::DQuat::from_mat3(&(DMat3::from_quat(turn) * r)).to_scaled_axis(),
+        }
+    }
 }
 
 /// The optimisers keep each code coordinate (in their own units, see
@@ -325,10 +406,9 @@ impl Registrar {
         let runs = self.register_batch(ctx, &jobs, params, on_chunk)?;
         let milliseconds = runs.iter().map(|r| r.milliseconds).fold(0.0, f64::max);
         let iterations = runs.iter().map(|r| r.iterations).sum();
-        let final_loss = |r: &Registration| r.losses.last().copied().unwrap_or(f64::INFINITY);
         let best = runs
             .into_iter()
-            .min_by(|a, b| final_loss(a).total_cmp(&final_loss(b)))
+            .min_by(|a, b| a.loss.total_cmp(&b.loss))
             .expect("at least one start");
         Ok(Registration {
             milliseconds,
@@ -352,6 +432,24 @@ impl Registrar {
     ) -> Result<Vec<Registration>> {
         let started = Instant::now();
         params.validate()?;
+        // With gravity and the pose free, every start is levelled first.
+        let levelled: Vec<Job> = jobs
+            .iter()
+            .map(|job| -> Result<Job> {
+                let Some(gravity) = job.gravity.filter(|_| params.pose_every > 0) else {
+                    return Ok(*job);
+                };
+                gravity.validate()?;
+                Ok(Job {
+                    view: View {
+                        pose: gravity.level(job.view.pose),
+                        ..job.view
+                    },
+                    ..*job
+                })
+            })
+            .collect::<Result<_>>()?;
+        let jobs = &levelled[..];
         if params.pose_every == 0 || params.align == 0 {
             return self.run(ctx, jobs, params, false, started, 0, &mut on_chunk);
         }
@@ -508,7 +606,7 @@ impl Registrar {
         pose_only: bool,
         timing: Option<(&Timestamps, &Timestamps)>,
     ) -> Result<()> {
-        let (m, k) = (task.m, task.k);
+        let (m, k) = (task.m, task.dims);
         let scene = &task.scene;
         if let Some((outer, _)) = timing {
             rec.reset_timestamps(outer);
@@ -645,6 +743,8 @@ pub struct Job<'a> {
     pub view: View,
     /// Further cameras of a multi-view registration (empty: one view).
     pub others: &'a [OtherView],
+    /// Which way is up, where known (used when the pose is optimised).
+    pub gravity: Option<Gravity>,
 }
 
 impl<'a> Job<'a> {
@@ -657,6 +757,7 @@ impl<'a> Job<'a> {
             depth: None,
             view,
             others: &[],
+            gravity: None,
         }
     }
 
@@ -710,7 +811,9 @@ struct Task<'a> {
     /// With several views: each view's pose relative to the first (`glsl/rig.comp`).
     rig: Option<Buffer>,
     m: usize,
+    /// The space's dimensions, and the device's (one more with a scale coordinate, last).
     k: usize,
+    dims: usize,
     done: usize,
     active: bool,
     best: f64,
@@ -721,14 +824,16 @@ impl<'a> Task<'a> {
     fn new(ctx: &Context, job: &Job<'a>, params: &RegisterParams) -> Result<Self> {
         let space = job.space;
         let k = space.dims();
-        if k > MAX_DIMS {
+        let dims = k + params.optimize_scale as usize;
+        if dims > MAX_DIMS {
             return Err(Error::Limit(format!(
                 "registration takes at most {MAX_DIMS} latent dimensions, the space has {k}"
             )));
         }
-        if params.optimizer == Optimizer::Bfgs && k > BFGS_MAX_DIMS {
+        if params.optimizer == Optimizer::Bfgs && dims > BFGS_MAX_DIMS {
             return Err(Error::InvalidInput(format!(
-                "the bfgs optimizer takes at most {BFGS_MAX_DIMS} latent dimensions, the space has {k}"
+                "the bfgs optimizer takes at most {BFGS_MAX_DIMS} latent dimensions (a scale \
+                 counts as one), the space has {k}"
             )));
         }
         let observed = match (params.shading, job.shaded) {
@@ -781,7 +886,7 @@ impl<'a> Task<'a> {
             .zip(&space.offset)
             .map(|(&c, &d)| (c as f64 + d) as f32)
             .collect();
-        let basis: Vec<f32> = (0..k)
+        let mut basis: Vec<f32> = (0..k)
             .flat_map(|c| {
                 let to_code = &to_code;
                 (0..space.offset.len()).map(move |i| {
@@ -791,18 +896,27 @@ impl<'a> Task<'a> {
                 })
             })
             .collect();
-        let state_len = StateLayout::new(k, params.iterations).len as usize;
+        // A scale coordinate x moves the vertices by x SCALE_UNIT (C + d0): the positions
+        // (1 + a)(C + d0) + B z are the shape (C + d0 + B z / (1 + a)) scaled by 1 + a, so
+        // a scaled shape space is this linear space and the optimisers stay as they are.
+        if params.optimize_scale {
+            basis.extend(base.iter().map(|&b| (b as f64 * SCALE_UNIT) as f32));
+        }
+        let layout = StateLayout::new(dims, params.iterations);
+        let prior = optimizer::prior_matrix(space, &to_code, dims);
+        let state = layout.initial(&prior, job.gravity.as_ref());
         Ok(Self {
             space,
             scene,
             to_code,
             base: Buffer::from_slice(ctx, "canonical + offset", &base)?,
             basis: Buffer::from_slice(ctx, "scaled deformation basis", &basis)?,
-            state: Buffer::from_slice(ctx, "optimizer state", &vec![0f32; state_len])?,
-            grad_latent: Buffer::from_slice(ctx, "latent gradient", &vec![0f32; k.max(1)])?,
+            state: Buffer::from_slice(ctx, "optimizer state", &state)?,
+            grad_latent: Buffer::from_slice(ctx, "latent gradient", &vec![0f32; dims.max(1)])?,
             rig,
             m: space.canonical.vertex_count(),
             k,
+            dims,
             done: 0,
             active: true,
             best: f64::INFINITY,
@@ -826,7 +940,7 @@ impl<'a> Task<'a> {
         }
         let losses = self
             .state
-            .read_range::<f32>(StateLayout::new(self.k, 0).losses as u64 * 4, self.done)?;
+            .read_range::<f32>(StateLayout::new(self.dims, 0).losses as u64 * 4, self.done)?;
         let best = losses.iter().copied().fold(f32::INFINITY, f32::min) as f64;
         let plateau = best.is_finite()
             && self.best.is_finite()
@@ -838,53 +952,72 @@ impl<'a> Task<'a> {
         Ok(*losses.last().unwrap_or(&f32::NAN) as f64)
     }
 
-    /// The latent code of device coordinates `z`.
-    fn code(&self, z: &[f32]) -> Vec<f64> {
-        (0..self.k)
+    /// The latent code and the scale of device coordinates `z` (the shape's code: the
+    /// deformation over the scale, see `Task::new`).
+    fn code(&self, z: &[f32]) -> (Vec<f64>, f64) {
+        let scale = match z.get(self.k) {
+            Some(&a) if self.dims > self.k => 1.0 + a as f64 * SCALE_UNIT,
+            _ => 1.0,
+        };
+        let code = (0..self.k)
             .map(|j| {
                 (0..self.k)
                     .map(|c| self.to_code.at(j, c) * z[c] as f64)
-                    .sum()
+                    .sum::<f64>()
+                    / scale
             })
-            .collect()
+            .collect();
+        (code, scale)
     }
 
     fn result(&self, params: &RegisterParams) -> Result<Registration> {
-        let k = self.k;
-        let layout = StateLayout::new(k, params.iterations);
+        let (k, dims) = (self.k, self.dims);
+        let layout = StateLayout::new(dims, params.iterations);
         let at = |offset: u32| offset as usize;
         let values = self.state.read_range::<f32>(0, at(layout.len))?;
-        let (coordinates, pose) = match params.optimizer {
+        let losses: Vec<f64> = values[at(layout.losses)..at(layout.losses) + self.done]
+            .iter()
+            .map(|&l| l as f64)
+            .collect();
+        let last_loss = losses.last().copied().unwrap_or(f64::NAN);
+        let (coordinates, pose, loss) = match params.optimizer {
             Optimizer::Sgd | Optimizer::Adam => (
-                &values[at(layout.latent)..at(layout.latent) + k],
+                &values[at(layout.latent)..at(layout.latent) + dims],
                 read_pose(self.scene.views())?,
+                last_loss,
             ),
             // The last accepted point (the current one is a step not yet evaluated).
             Optimizer::Bfgs => {
                 let accepted = at(layout.accepted);
                 let pose = if params.pose_every > 0 {
-                    layout.bfgs_pose(&values, k)
+                    layout.bfgs_pose(&values, dims)
                 } else {
                     read_pose(self.scene.views())?
                 };
-                (&values[accepted..accepted + k], pose)
+                let loss = values[at(layout.accepted_loss)] as f64;
+                (&values[accepted..accepted + dims], pose, loss)
             }
         };
-        let code = self.code(coordinates);
-        let on_bound = coordinates
+        let (code, scale) = self.code(coordinates);
+        let on_bound = coordinates[..k]
             .iter()
             .filter(|z| z.abs() as f64 >= CODE_BOUND)
             .count();
-        let losses = values[at(layout.losses)..at(layout.losses) + self.done]
-            .iter()
-            .map(|&l| l as f64)
-            .collect();
         let codes_at = at(layout.codes);
         let codes = (0..self.done)
-            .map(|t| self.code(&values[codes_at + t * k..codes_at + (t + 1) * k]))
+            .map(|t| {
+                self.code(&values[codes_at + t * dims..codes_at + (t + 1) * dims])
+                    .0
+            })
+            .collect();
+        let vertices = self
+            .space
+            .vertices(&code)?
+            .into_iter()
+            .map(|v| v * scale)
             .collect();
         Ok(Registration {
-            vertices: self.space.vertices(&code)?,
+            vertices,
             code,
             pose,
             losses,
@@ -892,6 +1025,8 @@ impl<'a> Task<'a> {
             iterations: self.done,
             milliseconds: self.milliseconds,
             on_bound,
+            scale,
+            loss,
         })
     }
 }

@@ -8,7 +8,7 @@
 use bytemuck::{Pod, Zeroable};
 use glam::{DMat3, DVec3};
 
-use super::RegisterParams;
+use super::{Gravity, RegisterParams};
 use crate::cpd::linalg::{self, Matrix};
 use crate::error::{Error, Result};
 use crate::gpu::{Binding, ComputePipeline, Context, Groups, Recorder};
@@ -113,6 +113,11 @@ pub(super) struct StateLayout {
     pub(super) accepted_grad: u32,
     pub(super) h: u32,
     pub(super) scratch: u32,
+    /// What the optimisers add to the images' loss (`glsl/include/objective.glsl`): the
+    /// code prior's matrix P (dims x dims, row-major), and gravity (up axis, direction,
+    /// tolerance, on: 8 floats). Written by [`StateLayout::initial`].
+    pub(super) prior: u32,
+    pub(super) gravity: u32,
     /// Floats in all.
     pub(super) len: u32,
 }
@@ -142,8 +147,38 @@ impl StateLayout {
             accepted_grad: accepted + n,
             h,
             scratch: h + n * n,
-            len: h + 2 * n * n,
+            prior: h + 2 * n * n,
+            gravity: h + 2 * n * n + d * d,
+            len: h + 2 * n * n + d * d + 8,
         }
+    }
+
+    /// The state before the first iteration: zeros, but for the code prior's matrix
+    /// (`prior`, dims x dims) and gravity.
+    pub(super) fn initial(&self, prior: &Matrix, gravity: Option<&Gravity>) -> Vec<f32> {
+        let mut state = vec![0f32; self.len as usize];
+        let at = self.prior as usize;
+        for (i, v) in prior.data.iter().enumerate() {
+            state[at + i] = *v as f32;
+        }
+        if let Some(g) = gravity {
+            let (up, direction) = (g.up.normalize(), g.direction.normalize());
+            let values = [
+                up.x,
+                up.y,
+                up.z,
+                direction.x,
+                direction.y,
+                direction.z,
+                g.tolerance,
+                1.0,
+            ];
+            let at = self.gravity as usize;
+            for (i, v) in values.into_iter().enumerate() {
+                state[at + i] = v as f32;
+            }
+        }
+        state
     }
 }
 
@@ -230,14 +265,8 @@ pub(super) fn optimizer_coordinates(space: &ShapeSpace, optimizer: Optimizer) ->
     let t = (space.training_codes.len() as f64 - 1.0).max(1.0);
     let mut a = Matrix::zeros(k, k);
     if optimizer != Optimizer::Bfgs {
-        for j in 0..k {
-            let var = space
-                .training_codes
-                .iter()
-                .map(|c| c[j] * c[j])
-                .sum::<f64>()
-                / t;
-            a.set(j, j, var.sqrt().max(1e-12));
+        for (j, sd) in space.code_deviations().into_iter().enumerate() {
+            a.set(j, j, sd);
         }
         return a;
     }
@@ -272,6 +301,28 @@ pub(super) fn optimizer_coordinates(space: &ShapeSpace, optimizer: Optimizer) ->
         }
     }
     a
+}
+
+/// The code prior's matrix P in the optimiser's coordinates (s = `to_code` z):
+/// A^T diag(1 / sd^2) A, so that z^T P z is |s|^2 in training standard deviations;
+/// `dims` rows and columns, those past the space's dimensions (a scale coordinate) zero.
+pub(super) fn prior_matrix(space: &ShapeSpace, to_code: &Matrix, dims: usize) -> Matrix {
+    let k = space.dims();
+    let precision: Vec<f64> = space
+        .code_deviations()
+        .iter()
+        .map(|sd| 1.0 / (sd * sd))
+        .collect();
+    let mut p = Matrix::zeros(dims, dims);
+    for a in 0..k {
+        for b in 0..k {
+            let v = (0..k)
+                .map(|j| to_code.at(j, a) * precision[j] * to_code.at(j, b))
+                .sum();
+            p.set(a, b, v);
+        }
+    }
+    p
 }
 
 #[cfg(test)]
@@ -580,8 +631,11 @@ mod tests {
         )
         .unwrap();
         let layout = StateLayout::new(k, iterations);
+        // The prior in these coordinates: |z|^2.
+        let mut identity = Matrix::zeros(k, k);
+        (0..k).for_each(|i| identity.set(i, i, 1.0));
         let mut state =
-            Buffer::from_slice(&ctx, "state", &vec![0f32; layout.len as usize]).unwrap();
+            Buffer::from_slice(&ctx, "state", &layout.initial(&identity, None)).unwrap();
         state.write(0, &[0f32]).unwrap();
         let mut grad_latent = Buffer::from_slice(&ctx, "grad latent", &vec![0f32; k]).unwrap();
         let mut grad_pose = Buffer::from_slice(&ctx, "grad pose", &[0f32; 6]).unwrap();

@@ -25,7 +25,7 @@ use vkdr::loss::Loss;
 use vkdr::mesh::{centroid, Mesh};
 use vkdr::raster::{Outputs, View};
 use vkdr::register::{
-    turned_starts, Job, Optimizer, OtherView, RegisterParams, Registrar, Registration,
+    turned_starts, Gravity, Job, Optimizer, OtherView, RegisterParams, Registrar, Registration,
 };
 use vkdr::shape::ShapeSpace;
 
@@ -315,6 +315,33 @@ pub struct EvalSettings {
     /// (`Registrar::register_from_starts`); the milliseconds are the batch's wall time and
     /// the iterations count every start.
     pub starts: usize,
+    /// A real frame's ways, rendered into each trial's first view: a box in front of the
+    /// object's left half (the mask shows the visible part; with depth the box's depth is
+    /// measured, without it the box's pixels are unknown), ...
+    pub occluder: bool,
+    /// ... the table the object stands on (in the depth only: a plane under the test
+    /// instance's lowest point, normal to the up axis), ...
+    pub table: bool,
+    /// ... holes in the depth (this fraction of the pixels, in clusters of a few pixels'
+    /// radius), ...
+    pub depth_holes: f64,
+    /// ... and a test instance of another size than the training set's (each test mesh
+    /// scaled by this about its origin).
+    pub test_scale: f64,
+    /// Which way is up with pose noise: the true pose's up axis (a known table or IMU), or
+    /// the support plane fitted in the observed depth (needs `table`); None: not used.
+    pub gravity: Option<GravitySource>,
+    /// Radians of tilt from up that cost nothing ([`Gravity::tolerance`]).
+    pub tilt_tolerance: f64,
+}
+
+/// Where [`EvalSettings::gravity`] comes from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GravitySource {
+    /// The true up direction (a robot's table plane or IMU).
+    Known,
+    /// The support plane fitted in the observed depth ([`vkdr::support`]).
+    FromDepth,
 }
 
 /// Azimuth and elevation (radians) of each camera of one trial: the first at a random
@@ -373,7 +400,37 @@ impl EvalSettings {
         } else {
             ""
         };
-        format!("{}; {views}{z}", parts.join(", "))
+        if self.depth.is_some() && self.depth_holes > 0.0 {
+            parts.push(format!(
+                "{:.0}% of the depth missing in clusters",
+                100.0 * self.depth_holes
+            ));
+        }
+        if self.table {
+            parts.push("the table under the object in the depth".into());
+        }
+        if self.occluder {
+            parts.push(if self.depth.is_some() {
+                "a box in front of the object's left half (occlusion found from the depth)".into()
+            } else {
+                "a box in front of the object's left half (its pixels unknown)".into()
+            });
+        }
+        if self.test_scale != 1.0 {
+            parts.push(format!("test instances scaled by {}", self.test_scale));
+        }
+        let gravity = match self.gravity {
+            None => String::new(),
+            Some(source) => format!(
+                "; up known{} within {:.1} deg with pose noise",
+                match source {
+                    GravitySource::Known => "",
+                    GravitySource::FromDepth => " from the table fitted in the depth",
+                },
+                self.tilt_tolerance.to_degrees()
+            ),
+        };
+        format!("{}; {views}{z}{gravity}", parts.join(", "))
     }
 }
 
@@ -458,6 +515,12 @@ impl Default for EvalSettings {
             own_elevations: false,
             fix_z: false,
             starts: 1,
+            occluder: false,
+            table: false,
+            depth_holes: 0.0,
+            test_scale: 1.0,
+            gravity: None,
+            tilt_tolerance: 1f64.to_radians(),
         }
     }
 }
@@ -602,6 +665,20 @@ pub struct Trial {
     /// with pose noise ([`Registration::on_bound`](vkdr::register::Registration)).
     pub known_pose_on_bound: usize,
     pub pose_noise_on_bound: usize,
+    /// With pose noise: the angle (radians) between the registered and the true up axis,
+    /// the error in the camera's z (metres, registered less true), and the scale found
+    /// (1 unless it is optimised).
+    pub tilt: f64,
+    pub z_error: f64,
+    pub scale: f64,
+    /// The angle (radians) between the up direction the registration was given and the
+    /// true one (0 without gravity or with it known; the support plane's error from depth).
+    pub gravity_error: f64,
+}
+
+/// The angle between two directions, radians.
+pub fn angle_between(a: DVec3, b: DVec3) -> f64 {
+    a.normalize().dot(b.normalize()).clamp(-1.0, 1.0).acos()
 }
 
 /// Angle (radians, 0 to pi/2) between the line of sight from the camera to the object's
@@ -703,6 +780,125 @@ pub fn render_mask(
         .collect())
 }
 
+/// A square plane 0.6 m across (both sides), normal to `up`, half a millimetre below the
+/// lowest point of `test` along it: the table it stands on.
+pub fn table_under(test: &Mesh, up: DVec3) -> Result<Mesh> {
+    let up = up.normalize();
+    let lowest = test
+        .points()
+        .iter()
+        .map(|p| p.dot(up))
+        .fold(f64::INFINITY, f64::min);
+    let a = up.any_orthonormal_vector();
+    let b = up.cross(a);
+    let centre = up * (lowest - 5e-4);
+    let corners: Vec<[f32; 3]> = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)]
+        .iter()
+        .map(|&(u, v)| (centre + 0.3 * (u * a + v * b)).as_vec3().to_array())
+        .collect();
+    Mesh::new(corners, vec![[0, 1, 2], [0, 2, 3], [0, 2, 1], [0, 3, 2]])
+}
+
+/// A rectangle facing the camera (both sides, camera coordinates) in front of the left
+/// half of the mask's box (`[row][column]` of `camera`'s size), 5 cm nearer than `near`
+/// (the nearest depth of the object) and a little taller than the box: an occluder that
+/// hides about half the object. None for an empty mask.
+pub fn occluder_before(camera: &Camera, mask: &[f32], near: f64) -> Result<Option<Mesh>> {
+    let w = camera.width as usize;
+    let covered: Vec<usize> = (0..mask.len()).filter(|&i| mask[i] > 0.0).collect();
+    if covered.is_empty() {
+        return Ok(None);
+    }
+    let xs = covered.iter().map(|&i| (i % w) as f64);
+    let ys = covered.iter().map(|&i| (i / w) as f64);
+    let (x0, x1) = (
+        xs.clone().fold(f64::INFINITY, f64::min),
+        xs.fold(0.0, f64::max) + 1.0,
+    );
+    let (y0, y1) = (
+        ys.clone().fold(f64::INFINITY, f64::min),
+        ys.fold(0.0, f64::max) + 1.0,
+    );
+    let z = (near - 0.05).max(2.0 * camera.near);
+    let margin = 0.1 * (y1 - y0);
+    let corner = |u: f64, v: f64| {
+        [
+            ((u - camera.cx) * z / camera.fx) as f32,
+            ((v - camera.cy) * z / camera.fy) as f32,
+            z as f32,
+        ]
+    };
+    let middle = 0.5 * (x0 + x1);
+    let (left, top, bottom) = (x0 - 4.0 * margin, y0 - margin, y1 + margin);
+    let corners = vec![
+        corner(left, top),
+        corner(middle, top),
+        corner(middle, bottom),
+        corner(left, bottom),
+    ];
+    Ok(Some(Mesh::new(
+        corners,
+        vec![[0, 1, 2], [0, 2, 3], [0, 2, 1], [0, 3, 2]],
+    )?))
+}
+
+/// Puts `other` (an observation of one view with depth: mask and depth of another
+/// surface) into the first view of `observed` (with depth), nearest surface first: where
+/// it lies in front of the object the object is hidden (mask 0, or unknown where
+/// `unknown`), and its depth is measured wherever it is the nearest surface.
+pub fn put_in_front(observed: &mut Observation, other: &Observation, unknown: bool) {
+    let (Some(depth), Some(other_depth)) = (observed.depth.as_mut(), other.depth.as_ref()) else {
+        return;
+    };
+    for i in 0..other.mask.len() {
+        let z = other_depth[i];
+        if other.mask[i] <= 0.0 || !(depth[i] == 0.0 || z < depth[i]) {
+            continue;
+        }
+        depth[i] = z;
+        let hidden = if unknown { vkdr::loss::UNKNOWN } else { 0.0 };
+        if unknown || observed.mask[i] > 0.0 {
+            observed.mask[i] = hidden;
+            if let Some(shaded) = observed.shaded.as_mut() {
+                shaded[i] = hidden;
+            }
+        }
+    }
+}
+
+/// Removes about `fraction` of the measured depth of one view (`width` wide) in clusters:
+/// discs of 2 to 6 pixels' radius at random centres, as a sensor loses dark, shiny or
+/// grazing surfaces.
+pub fn cluster_holes(depth: &mut [f32], width: usize, fraction: f64, rng: &mut Rng) {
+    let height = depth.len() / width.max(1);
+    let target = (fraction * depth.len() as f64) as usize;
+    let mut removed = 0;
+    let mut attempts = 0;
+    while removed < target && attempts < 100 * depth.len() {
+        attempts += 1;
+        let (cx, cy) = (rng.range(0.0, width as f64), rng.range(0.0, height as f64));
+        let r = rng.range(2.0, 6.0);
+        let (x0, x1) = (
+            (cx - r).max(0.0) as usize,
+            ((cx + r) as usize).min(width - 1),
+        );
+        let (y0, y1) = (
+            (cy - r).max(0.0) as usize,
+            ((cy + r) as usize).min(height - 1),
+        );
+        for y in y0..=y1 {
+            for x in x0..=x1 {
+                let (dx, dy) = (x as f64 + 0.5 - cx, y as f64 + 0.5 - cy);
+                let i = y * width + x;
+                if dx * dx + dy * dy <= r * r && depth[i] > 0.0 {
+                    depth[i] = 0.0;
+                    removed += 1;
+                }
+            }
+        }
+    }
+}
+
 /// What cameras at `views` observe of `mesh`, each image `[view][row][column]`.
 pub struct Observation {
     /// The mask: 1 where the mesh covers the pixel centre, else 0.
@@ -787,10 +983,10 @@ pub fn reverse_error(
     Ok(surface_error(&points, &test.points(), test.triangles()))
 }
 
-/// The loss a registration ended with (what [`Registrar::register_from_starts`] keeps the
-/// least of); NaN without iterations.
+/// The loss a registration ended with, at the code and pose it returned (what
+/// [`Registrar::register_from_starts`] keeps the least of).
 pub fn final_loss(registration: &Registration) -> f64 {
-    registration.losses.last().copied().unwrap_or(f64::NAN)
+    registration.loss
 }
 
 /// `vertices` moved so that their centroid is that of `reference` (the same mesh's
@@ -829,10 +1025,32 @@ pub fn evaluate_instance(
     settings: &EvalSettings,
     mut progress: impl FnMut(usize, usize),
 ) -> Result<Row> {
+    // A test instance of another size: where the scale is optimised, the oracle and the
+    // space optimum are those of the instance at its own size, scaled (the space with a
+    // scale reaches exactly that); otherwise the space's own at the scaled size.
+    let scaled;
+    let (test, floor_scale) = if settings.test_scale == 1.0 {
+        (test, 1.0)
+    } else {
+        let k = settings.test_scale;
+        scaled = test.with_points(&test.points().iter().map(|p| *p * k).collect::<Vec<_>>())?;
+        let scaled_floor = settings.known_pose.optimize_scale && settings.pose_noise.optimize_scale;
+        (&scaled, if scaled_floor { k } else { 1.0 })
+    };
+    let table = if settings.table {
+        Some(table_under(test, settings.up)?)
+    } else {
+        None
+    };
     let truth = surface_sample(test, SAMPLE_POINTS, hash(name));
     let test_vertices = test.points();
-    let oracle_code = space.oracle_code(ctx, &test_vertices, &settings.cpd)?;
-    let oracle_vertices = space.vertices(&oracle_code)?;
+    let unscaled: Vec<DVec3> = test_vertices.iter().map(|p| *p / floor_scale).collect();
+    let oracle_code = space.oracle_code(ctx, &unscaled, &settings.cpd)?;
+    let oracle_vertices: Vec<DVec3> = space
+        .vertices(&oracle_code)?
+        .iter()
+        .map(|p| *p * floor_scale)
+        .collect();
     let error = |vertices: &[DVec3]| surface_error(&truth, vertices, space.canonical.triangles());
     // The mean of the error both ways, test to shape (`forward`, already measured) and
     // shape to test.
@@ -851,7 +1069,9 @@ pub fn evaluate_instance(
     let mut curve_known = vec![0.0; settings.known_pose.total_iterations()];
     let mut curve_noise = vec![0.0; settings.pose_noise.total_iterations()];
     let mut ms_per_iteration = Vec::new();
-    let (_, optimum) = space_optimum(space, &truth, &oracle_code, 30)?;
+    let unscaled_truth: Vec<DVec3> = truth.iter().map(|p| *p / floor_scale).collect();
+    let (_, optimum) = space_optimum(space, &unscaled_truth, &oracle_code, 30)?;
+    let optimum = optimum * floor_scale;
     let known_pose = RegisterParams {
         shading: settings.shading,
         depth: settings.depth,
@@ -885,17 +1105,44 @@ pub fn evaluate_instance(
             })
             .collect();
         let views = Job::new(space, &[], view).with_others(&others).views();
-        let observed = observe(
+        let with_surroundings = settings.occluder || settings.table;
+        let mut observed = observe(
             ctx,
             registrar,
             test,
             &views,
-            settings.depth.is_some(),
+            settings.depth.is_some() || with_surroundings,
             settings.shading,
         )?;
+        let n = (settings.camera.width * settings.camera.height) as usize;
+        if let Some(table) = &table {
+            let seen = observe(ctx, registrar, table, &[view], true, None)?;
+            put_in_front(&mut observed, &seen, false);
+        }
+        if settings.occluder {
+            let near = observed.depth.as_ref().map_or(settings.distance, |d| {
+                d[..n]
+                    .iter()
+                    .zip(&observed.mask)
+                    .filter(|&(&z, &m)| m > 0.0 && z > 0.0)
+                    .map(|(&z, _)| z as f64)
+                    .fold(f64::INFINITY, f64::min)
+            });
+            if let Some(occluder) = occluder_before(&settings.camera, &observed.mask[..n], near)? {
+                let camera_frame = View {
+                    camera: settings.camera,
+                    pose: Pose::at([0.0; 3]),
+                };
+                let seen = observe(ctx, registrar, &occluder, &[camera_frame], true, None)?;
+                put_in_front(&mut observed, &seen, settings.depth.is_none());
+            }
+        }
+        if settings.depth.is_none() {
+            observed.depth = None;
+        }
         let (mask, shaded) = (observed.mask, observed.shaded);
         let depth: Option<Vec<f32>> = observed.depth.map(|depth| {
-            depth
+            let mut depth: Vec<f32> = depth
                 .iter()
                 .map(|&z| {
                     if z > 0.0 && settings.depth_noise > 0.0 {
@@ -905,12 +1152,39 @@ pub fn evaluate_instance(
                         z
                     }
                 })
-                .collect()
+                .collect();
+            if settings.depth_holes > 0.0 {
+                for view in depth.chunks_mut(n) {
+                    let width = settings.camera.width as usize;
+                    cluster_holes(view, width, settings.depth_holes, &mut rng);
+                }
+            }
+            depth
+        });
+        let true_up = pose.rotation_matrix() * settings.up;
+        let gravity = match settings.gravity {
+            None => None,
+            Some(GravitySource::Known) => Some(true_up),
+            Some(GravitySource::FromDepth) => {
+                let depth = depth.as_deref().ok_or_else(|| {
+                    vkdr::Error::InvalidInput("gravity from the depth needs depth".into())
+                })?;
+                let visible: Vec<f32> = mask[..n].iter().map(|&m| m.max(0.0)).collect();
+                let plane =
+                    vkdr::support::fit_support_plane(&settings.camera, &depth[..n], &visible, 0.5)?;
+                Some(plane.normal)
+            }
+        }
+        .map(|direction| Gravity {
+            up: settings.up,
+            direction,
+            tolerance: settings.tilt_tolerance,
         });
         let job = |view| Job {
             shaded: shaded.as_deref(),
             depth: depth.as_deref(),
             others: &others,
+            gravity,
             ..Job::new(space, &mask, view)
         };
 
@@ -960,6 +1234,7 @@ pub fn evaluate_instance(
         };
         let seen = as_seen(&result.vertices, result.pose, pose);
         let pose_noise_seen = error(&seen);
+        let registered_up = result.pose.rotation_matrix() * settings.up;
         trials.push(Trial {
             azimuth,
             elevation,
@@ -977,6 +1252,10 @@ pub fn evaluate_instance(
             translation_error,
             known_pose_on_bound: known_on_bound,
             pose_noise_on_bound: result.on_bound,
+            tilt: angle_between(registered_up, true_up),
+            z_error: result.pose.translation.z - pose.translation.z,
+            scale: result.scale,
+            gravity_error: gravity.map_or(0.0, |g| angle_between(g.direction, true_up)),
         });
         noisy_ch.push(chamfer(&test_vertices, &result.vertices));
         noise_iterations.push(result.iterations as f64);

@@ -101,6 +101,42 @@ pub struct Args {
     /// with the pose known the images leave no shift of the shape open). 0: none.
     #[arg(long, allow_negative_numbers = true, default_value_t = 0.0)]
     code_prior: f64,
+    /// A box in front of the left half of each object in the first view (with --depth its
+    /// depth is measured and occlusion is found from the data; without, its pixels are
+    /// unknown, as BOP's mask less mask_visib).
+    #[arg(long)]
+    occluder: bool,
+    /// The table the object stands on, in the depth (needed by --gravity from-depth).
+    #[arg(long, requires = "depth")]
+    table: bool,
+    /// This fraction of the depth missing, in clusters (0 to 0.9).
+    #[arg(
+        long,
+        requires = "depth",
+        allow_negative_numbers = true,
+        default_value_t = 0.0
+    )]
+    depth_holes: f64,
+    /// Scale every test instance by this about its origin (e.g. 1.25: larger than every
+    /// training instance).
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
+    test_scale: f64,
+    /// Fit one uniform scale of the shape too, in both conditions (0.5 to 1.5).
+    #[arg(long)]
+    optimize_scale: bool,
+    /// With pose noise, keep the object's up axis within --tilt-tolerance of up: `known`
+    /// (the true up: a known table or IMU) or `from-depth` (the table fitted in the depth;
+    /// needs --table).
+    #[arg(long, value_parser = ["known", "from-depth"])]
+    gravity: Option<String>,
+    /// Degrees of tilt from --gravity that cost nothing.
+    #[arg(
+        long,
+        requires = "gravity",
+        allow_negative_numbers = true,
+        default_value_t = 1.0
+    )]
+    tilt_tolerance: f64,
     /// Run even where `check-dataset` finds the set unusable (millimetres, no meshes, ...).
     #[arg(long)]
     skip_checks: bool,
@@ -160,6 +196,36 @@ pub fn run(args: &Args) -> Result<()> {
     }
     settings.starts = args.starts;
     settings.pose_noise.code_prior = args.code_prior;
+    settings.occluder = args.occluder;
+    settings.table = args.table;
+    if !(args.depth_holes.is_finite() && (0.0..=0.9).contains(&args.depth_holes)) {
+        bail!(
+            "--depth-holes must be a fraction, 0 to 0.9, not {}",
+            args.depth_holes
+        );
+    }
+    settings.depth_holes = args.depth_holes;
+    if !(args.test_scale.is_finite() && (0.1..=10.0).contains(&args.test_scale)) {
+        bail!("--test-scale must be 0.1 to 10, not {}", args.test_scale);
+    }
+    settings.test_scale = args.test_scale;
+    settings.known_pose.optimize_scale = args.optimize_scale;
+    settings.pose_noise.optimize_scale = args.optimize_scale;
+    settings.gravity = match args.gravity.as_deref() {
+        None => None,
+        Some("known") => Some(vkdr_app::eval::GravitySource::Known),
+        Some(_) if !args.table => bail!(
+            "--gravity from-depth fits the table the object stands on: give --table (and --depth)"
+        ),
+        Some(_) => Some(vkdr_app::eval::GravitySource::FromDepth),
+    };
+    if !(args.tilt_tolerance.is_finite() && (0.0..90.0).contains(&args.tilt_tolerance)) {
+        bail!(
+            "--tilt-tolerance must be 0 to 90 degrees, not {}",
+            args.tilt_tolerance
+        );
+    }
+    settings.tilt_tolerance = args.tilt_tolerance.to_radians();
     let loss: Option<vkdr::loss::Loss> = args.loss.map(Into::into);
     let optimizer: Option<vkdr::register::Optimizer> = args.optimizer.map(Into::into);
     for params in [&mut settings.known_pose, &mut settings.pose_noise] {
@@ -220,14 +286,16 @@ fn evaluate(
     Ok(())
 }
 
-/// Observed mask in blue, rendered silhouette in red (overlap magenta).
+/// Observed mask in blue, rendered silhouette in red (overlap magenta); pixels whose
+/// content is unknown (`loss::UNKNOWN`: hidden, ignored) green.
 pub fn overlay(observed: &[f32], rendered: &[f32], width: u32, height: u32) -> RgbImage {
     RgbImage::from_fn(width, height, |x, y| {
         let k = (y * width + x) as usize;
+        let unknown = observed[k] < 0.0;
         Rgb([
             (30.0 + 225.0 * rendered[k]) as u8,
-            30,
-            (30.0 + 225.0 * observed[k]) as u8,
+            if unknown { 110 } else { 30 },
+            (30.0 + 225.0 * observed[k].max(0.0)) as u8,
         ])
     })
 }
@@ -330,6 +398,9 @@ pub fn register(
         &serde_json::json!({
             "translation": p.translation.to_array(),
             "rotation": p.rotation.to_array(),
+            "scale": result.scale,
+            "code_sd": space.code_in_deviations(&result.code),
+            "loss": result.loss,
         }),
     )?;
     // The kept run's iterations (with several starts `iterations` counts them all, and
@@ -558,6 +629,49 @@ fn category_table(rows: &[Row]) -> String {
     md
 }
 
+/// The pose with pose noise, per instance: what a robot acting on it meets. Ratios of the
+/// error as seen to the space optimum, and both ways to the larger of the oracle's error
+/// both ways and a quarter pixel's footprint at the object's distance (a sub-pixel
+/// residual against a 0.04 mm oracle is no "30x").
+fn pose_table(rows: &[Row], settings: &EvalSettings) -> String {
+    let footprint = 0.25 * settings.distance / settings.camera.fx.min(settings.camera.fy);
+    let mut md = format!(
+        "\nPose with pose noise (rotation up to the symmetry about the up axis where the instance has it; tilt: the angle \
+         between the registered and the true up axis; z: the error in the camera's z; as seen / opt.: the error as seen over \
+         the space optimum; both ways / floor: the error as seen both ways over the larger of the oracle's both ways and a \
+         quarter pixel's footprint at the object's distance, {:.3} mm; means, largest in brackets):\n\n\
+         | category | instance | rotation (deg) | tilt (deg) | z (mm) | scale | as seen / opt. | both ways / floor |\n|---|---|---|---|---|---|---|---|\n",
+        1e3 * footprint
+    );
+    for r in rows {
+        let n = r.trials.len().max(1) as f64;
+        let mean = |f: &dyn Fn(&Trial) -> f64| r.trials.iter().map(f).sum::<f64>() / n;
+        let most = |f: &dyn Fn(&Trial) -> f64| r.trials.iter().map(f).fold(0.0, f64::max);
+        let least =
+            |f: &dyn Fn(&Trial) -> f64| r.trials.iter().map(f).fold(f64::INFINITY, f64::min);
+        let floor = r.oracle_both_ways.max(footprint);
+        md.push_str(&format!(
+            "| {} | {} | {:.1} ({:.1}) | {:.1} ({:.1}) | {:.1} ({:.1}) | {:.3} ({:.3}-{:.3}) | {:.2} ({:.2}) | {:.2} ({:.2}) |\n",
+            r.category,
+            r.instance,
+            mean(&|t| t.rotation_error_symmetric.to_degrees()),
+            most(&|t| t.rotation_error_symmetric.to_degrees()),
+            mean(&|t| t.tilt.to_degrees()),
+            most(&|t| t.tilt.to_degrees()),
+            mean(&|t| 1e3 * t.z_error.abs()),
+            most(&|t| 1e3 * t.z_error.abs()),
+            mean(&|t| t.scale),
+            least(&|t| t.scale),
+            most(&|t| t.scale),
+            mean(&|t| t.pose_noise_seen) / r.space_optimum,
+            most(&|t| t.pose_noise_seen) / r.space_optimum,
+            mean(&|t| t.pose_noise_seen_both_ways) / floor,
+            most(&|t| t.pose_noise_seen_both_ways) / floor,
+        ));
+    }
+    md
+}
+
 /// Whether the pose-noise fit of `trial` ended with a lower loss than the fit at the true
 /// pose: the images prefer what it found to the truth's best code.
 fn images_prefer_noise_fit(trial: &Trial) -> bool {
@@ -655,12 +769,12 @@ fn view_table(rows: &[Row]) -> String {
 /// One line per trial: the view, the errors, and the pose error with pose noise.
 fn trials_csv(rows: &[Row]) -> String {
     let mut csv = String::from(
-        "category,instance,trial,azimuth_deg,elevation_deg,long_axis_angle_deg,short_axis_angle_deg,known_pose,pose_noise,pose_noise_placed,pose_noise_seen,rotation_error_deg,rotation_error_symmetric_deg,translation_error,known_pose_on_bound,pose_noise_on_bound,known_pose_loss,pose_noise_loss,pose_noise_seen_both_ways\n",
+        "category,instance,trial,azimuth_deg,elevation_deg,long_axis_angle_deg,short_axis_angle_deg,known_pose,pose_noise,pose_noise_placed,pose_noise_seen,rotation_error_deg,rotation_error_symmetric_deg,translation_error,known_pose_on_bound,pose_noise_on_bound,known_pose_loss,pose_noise_loss,pose_noise_seen_both_ways,tilt_deg,z_error,scale,gravity_error_deg\n",
     );
     for r in rows {
         for (i, t) in r.trials.iter().enumerate() {
             csv.push_str(&format!(
-                "{},{},{i},{:.2},{:.2},{:.2},{:.2},{:e},{:e},{:e},{:e},{:.3},{:.3},{:e},{},{},{:e},{:e},{:e}\n",
+                "{},{},{i},{:.2},{:.2},{:.2},{:.2},{:e},{:e},{:e},{:e},{:.3},{:.3},{:e},{},{},{:e},{:e},{:e},{:.3},{:e},{:.5},{:.3}\n",
                 r.category,
                 r.instance,
                 t.azimuth.to_degrees(),
@@ -679,6 +793,10 @@ fn trials_csv(rows: &[Row]) -> String {
                 t.known_pose_loss,
                 t.pose_noise_loss,
                 t.pose_noise_seen_both_ways,
+                t.tilt.to_degrees(),
+                t.z_error,
+                t.scale,
+                t.gravity_error.to_degrees(),
             ));
         }
     }
@@ -813,9 +931,16 @@ pub fn write_reports(
             "shading": shading_json,
             "depth": depth_json,
             "code_prior": noisy.code_prior,
+            "pose_noise_pose": {
+                "rotation_symmetric_deg": stat(&eval::Stat::of(&r.trials.iter().map(|t| t.rotation_error_symmetric.to_degrees()).collect::<Vec<_>>())),
+                "tilt_deg": stat(&eval::Stat::of(&r.trials.iter().map(|t| t.tilt.to_degrees()).collect::<Vec<_>>())),
+                "z_error_abs": stat(&eval::Stat::of(&r.trials.iter().map(|t| t.z_error.abs()).collect::<Vec<_>>())),
+                "scale": stat(&eval::Stat::of(&r.trials.iter().map(|t| t.scale).collect::<Vec<_>>())),
+            },
         }));
     }
     md.push_str(&category_table(rows));
+    md.push_str(&pose_table(rows, settings));
     write_atomically(&out.join("table.md"), md.as_bytes())?;
     write_atomically(&out.join("table.csv"), csv.as_bytes())?;
     write_atomically(&out.join("trials.csv"), trials_csv(rows).as_bytes())?;

@@ -10,7 +10,7 @@ use vkdr::camera::parse_numbers;
 use vkdr::gpu::Context;
 use vkdr::loss;
 use vkdr::raster::View;
-use vkdr::register::{self, turned_starts, Job, OtherView, RegisterParams, Registrar};
+use vkdr::register::{self, turned_starts, Gravity, Job, OtherView, RegisterParams, Registrar};
 use vkdr::shape::ShapeSpace;
 use vkdr::{Camera, Mesh, Pose};
 use vkdr_app::eval::{self, EvalSettings};
@@ -90,9 +90,27 @@ pub struct Args {
     /// with the least final loss (1 to 8; against a rotation that stops in a local minimum).
     #[arg(long, default_value_t = 1)]
     starts: usize,
-    /// The object's up axis for --starts, in its own frame: x,y,z.
+    /// The object's up axis for --starts and --gravity, in its own frame: x,y,z.
     #[arg(long, default_value = "0,1,0")]
     up: String,
+    /// With --optimize-pose: which way is up in the camera frame (the support plane's
+    /// normal, away from it: x,y,z, with y down in the image), or `from-depth` to fit the
+    /// plane the object stands on in the observed depth. The object's --up axis is kept
+    /// within --tilt-tolerance of it; the rotation about it stays free.
+    #[arg(long, requires = "optimize_pose", allow_hyphen_values = true)]
+    gravity: Option<String>,
+    /// Degrees of tilt from --gravity that cost nothing.
+    #[arg(
+        long,
+        requires = "gravity",
+        allow_negative_numbers = true,
+        default_value_t = 1.0
+    )]
+    tilt_tolerance: f64,
+    /// Fit one uniform scale of the shape too (0.5 to 1.5), for an instance larger or
+    /// smaller than the training set's; observable with depth or a further view.
+    #[arg(long)]
+    optimize_scale: bool,
     #[arg(long)]
     out: PathBuf,
 }
@@ -259,6 +277,48 @@ fn from_files(args: &Args, view: View, further: &[FurtherView]) -> Result<eval::
     Ok(observed)
 }
 
+/// The up direction of --gravity: given, or the normal of the support plane fitted in the
+/// observed depth (printed).
+fn gravity(
+    args: &Args,
+    text: &str,
+    up: DVec3,
+    view: View,
+    observed: &eval::Observation,
+) -> Result<Gravity> {
+    let direction = if text == "from-depth" {
+        let Some(depth) = &observed.depth else {
+            bail!("--gravity from-depth needs the observed depth (--observed-depth, or --depth)");
+        };
+        let n = (view.camera.width * view.camera.height) as usize;
+        let mask: Vec<f32> = observed.mask[..n].iter().map(|&m| m.max(0.0)).collect();
+        let plane = vkdr::support::fit_support_plane(&view.camera, &depth[..n], &mask, 0.5)
+            .context("--gravity from-depth")?;
+        println!(
+            "support plane: normal {:.4},{:.4},{:.4} at {:.4} m, {} of {} pixels around the mask on it (rms {:.1} mm)",
+            plane.normal.x,
+            plane.normal.y,
+            plane.normal.z,
+            plane.offset,
+            plane.inliers,
+            plane.candidates,
+            plane.rms * 1e3
+        );
+        plane.normal
+    } else {
+        DVec3::from_array(parse_numbers::<3>(text, "--gravity")?)
+    };
+    let gravity = Gravity {
+        up,
+        direction,
+        tolerance: args.tilt_tolerance.to_radians(),
+    };
+    gravity
+        .validate()
+        .context("--gravity and --tilt-tolerance")?;
+    Ok(gravity)
+}
+
 /// A depth image in metres: a `.npy` as it is, a PNG times --depth-scale millimetres.
 fn load_depth(args: &Args, path: &Path, w: u32, h: u32) -> Result<Vec<f32>> {
     let is_png = path
@@ -379,20 +439,27 @@ pub fn run(args: &Args) -> Result<()> {
         depth: observed.depth.is_some().then_some(depth_loss),
         optimize_z: base.optimize_z || (args.optimize_pose && observes_z),
         code_prior: args.code_prior,
+        optimize_scale: args.optimize_scale,
         ..base
+    };
+    let gravity = match &args.gravity {
+        None => None,
+        Some(g) => Some(gravity(args, g, up, view, &observed)?),
     };
     let job = Job {
         shaded: observed.shaded.as_deref(),
         depth: observed.depth.as_deref(),
         others: &others,
+        gravity,
         ..Job::new(&space, &observed.mask, view)
     };
     let starts = turned_starts(view.pose, up, args.starts, settings.rotation_noise);
     let result = eval_cmd::register(&ctx, job, &starts, &params, &args.out)?;
     // With several starts, `iterations` counts every start's; the kept run's are its losses.
     let kept = result.losses.len().max(1);
+    let first = result.losses.first().copied().unwrap_or(f64::NAN);
     println!(
-        "{kept} iterations{} in {:.1} ms ({:.2} ms per iteration); loss {:.5} -> {:.5}; code {:?}",
+        "{kept} iterations{} in {:.1} ms ({:.2} ms per iteration); loss {first:.5} -> {:.5}{}",
         if starts.len() > 1 {
             format!(
                 " ({} starts together, {} iterations in all)",
@@ -404,14 +471,46 @@ pub fn run(args: &Args) -> Result<()> {
         },
         result.milliseconds,
         result.milliseconds / kept as f64,
-        result.losses.first().copied().unwrap_or(f64::NAN),
-        result.losses.last().copied().unwrap_or(f64::NAN),
-        result
-            .code
-            .iter()
-            .map(|c| (c * 1e4).round() / 1e4)
-            .collect::<Vec<_>>()
+        result.loss,
+        if params.optimize_scale {
+            format!("; scale {:.4}", result.scale)
+        } else {
+            String::new()
+        },
     );
+    let sd = space.code_in_deviations(&result.code);
+    println!(
+        "code in training standard deviations {:?}{}",
+        sd.iter()
+            .map(|c| (c * 100.0).round() / 100.0)
+            .collect::<Vec<_>>(),
+        match sd.iter().map(|c| c.abs()).fold(0.0, f64::max) {
+            m if m > 3.0 => format!(" (beyond 3 SD: {m:.1})"),
+            _ => String::new(),
+        }
+    );
+    if let Some(g) = &gravity {
+        println!(
+            "tilt from up {:.2} degrees (tolerance {:.2})",
+            g.tilt(&result.pose).to_degrees(),
+            g.tolerance.to_degrees()
+        );
+    }
+    // The stage after the pose alignment starts from its own loss (another loss function).
+    let joint_start = result.losses.get(params.align.min(kept - 1)).copied();
+    if args.optimize_pose && params.align > 0 {
+        if let Some(start) = joint_start.filter(|&s| result.loss > s) {
+            eprintln!(
+                "warning: the registration ended above its start ({start:.5} -> {:.5})",
+                result.loss
+            );
+        }
+    } else if result.loss > first {
+        eprintln!(
+            "warning: the registration ended above its start ({first:.5} -> {:.5})",
+            result.loss
+        );
+    }
     println!(
         "wrote {0}/deformed.obj, pose.json, code.npy, log.json, overlay_start.png, overlay_end.png{1}{2}",
         args.out.display(),
