@@ -89,6 +89,37 @@ pub fn mark_unknown(image: &mut [f32], channels: usize, ignore: &[f32]) -> Resul
     Ok(())
 }
 
+/// The pixels of one view that its depth shows in front of the object: outside the mask
+/// (`observed` channel 0 is 0), measured nearer than the nearest twentieth of the mask's
+/// measured depth by more than `tolerance` (metres). What hides part of the object, found
+/// before anything is rendered (the registration's pose alignment compares masks alone;
+/// `DepthLoss::occlusion` finds the rest against the rendered surface). 1 where found.
+pub fn in_front_of_mask(
+    observed: &[f32],
+    channels: usize,
+    depth: &[f32],
+    tolerance: f64,
+) -> Vec<f32> {
+    let mut object: Vec<f32> = depth
+        .iter()
+        .enumerate()
+        .filter(|&(i, &z)| z > 0.0 && observed[i * channels] > 0.0)
+        .map(|(_, &z)| z)
+        .collect();
+    if object.is_empty() || tolerance <= 0.0 {
+        return vec![0.0; depth.len()];
+    }
+    object.sort_by(f32::total_cmp);
+    let near = object[object.len() / 20] as f64 - tolerance;
+    depth
+        .iter()
+        .enumerate()
+        .map(|(i, &z)| {
+            (z > 0.0 && (z as f64) < near && observed[i * channels] == 0.0) as u32 as f32
+        })
+        .collect()
+}
+
 /// Reads a mask PNG of `width` x `height`, row-major. Where the image has an alpha channel
 /// that is used (some pixel not fully opaque), alpha is the mask: 1 where it is nonzero (a
 /// cut-out, whatever its colour). Otherwise (no alpha, or opaque everywhere, as many tools

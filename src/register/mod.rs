@@ -237,6 +237,42 @@ pub struct Registration {
     pub loss: f64,
 }
 
+/// With depth and an occlusion tolerance: the job's mask (and shading) with the pixels
+/// that its depth shows in front of the object marked unknown
+/// ([`crate::loss::in_front_of_mask`], per view); None where nothing is.
+fn unknown_in_front(
+    job: &Job,
+    params: &RegisterParams,
+) -> Result<Option<(Vec<f32>, Option<Vec<f32>>)>> {
+    let (Some(loss), Some(depth)) = (params.depth, job.depth) else {
+        return Ok(None);
+    };
+    let pixels = (job.view.camera.width * job.view.camera.height) as usize;
+    if depth.len() != job.observed.len() || depth.len() % pixels.max(1) != 0 {
+        return Ok(None); // Scene::new names the mismatch.
+    }
+    let hidden: Vec<f32> = job
+        .observed
+        .chunks(pixels)
+        .zip(depth.chunks(pixels))
+        .flat_map(|(mask, depth)| crate::loss::in_front_of_mask(mask, 1, depth, loss.occlusion))
+        .collect();
+    if hidden.iter().all(|&h| h == 0.0) {
+        return Ok(None);
+    }
+    let mut observed = job.observed.to_vec();
+    crate::loss::mark_unknown(&mut observed, 1, &hidden)?;
+    let shaded = match job.shaded {
+        Some(shaded) if shaded.len() == hidden.len() => {
+            let mut shaded = shaded.to_vec();
+            crate::loss::mark_unknown(&mut shaded, 1, &hidden)?;
+            Some(shaded)
+        }
+        other => other.map(<[f32]>::to_vec),
+    };
+    Ok(Some((observed, shaded)))
+}
+
 /// The turns (radians) of [`turned_starts`]: 0, +`step`, -`step`, +2 `step`, -2 `step`,
 /// ..., `count` of them.
 pub fn start_turns(count: usize, step: f64) -> Vec<f64> {
@@ -449,6 +485,24 @@ impl Registrar {
                 })
             })
             .collect::<Result<_>>()?;
+        // With depth, what stands in front of the object outside its mask is unknown from
+        // the start (the pose alignment compares masks alone).
+        let marked: Vec<Option<(Vec<f32>, Option<Vec<f32>>)>> = levelled
+            .iter()
+            .map(|job| unknown_in_front(job, params))
+            .collect::<Result<_>>()?;
+        let levelled: Vec<Job> = levelled
+            .iter()
+            .zip(&marked)
+            .map(|(job, marked)| match marked {
+                None => *job,
+                Some((observed, shaded)) => Job {
+                    observed,
+                    shaded: shaded.as_deref(),
+                    ..*job
+                },
+            })
+            .collect();
         let jobs = &levelled[..];
         if params.pose_every == 0 || params.align == 0 {
             return self.run(ctx, jobs, params, false, started, 0, &mut on_chunk);

@@ -638,7 +638,7 @@ fn pose_table(rows: &[Row], settings: &EvalSettings) -> String {
     let mut md = format!(
         "\nPose with pose noise (rotation up to the symmetry about the up axis where the instance has it; tilt: the angle \
          between the registered and the true up axis; z: the error in the camera's z; as seen / opt.: the error as seen over \
-         the space optimum; both ways / floor: the error as seen both ways over the larger of the oracle's both ways and a \
+         the larger of the space optimum and a quarter pixel's footprint at the object's distance; both ways / floor: the error as seen both ways over the larger of the oracle's both ways and a \
          quarter pixel's footprint at the object's distance, {:.3} mm; means, largest in brackets):\n\n\
          | category | instance | rotation (deg) | tilt (deg) | z (mm) | scale | as seen / opt. | both ways / floor |\n|---|---|---|---|---|---|---|---|\n",
         1e3 * footprint
@@ -663,8 +663,8 @@ fn pose_table(rows: &[Row], settings: &EvalSettings) -> String {
             mean(&|t| t.scale),
             least(&|t| t.scale),
             most(&|t| t.scale),
-            mean(&|t| t.pose_noise_seen) / r.space_optimum,
-            most(&|t| t.pose_noise_seen) / r.space_optimum,
+            mean(&|t| t.pose_noise_seen) / r.space_optimum.max(footprint),
+            most(&|t| t.pose_noise_seen) / r.space_optimum.max(footprint),
             mean(&|t| t.pose_noise_seen_both_ways) / floor,
             most(&|t| t.pose_noise_seen_both_ways) / floor,
         ));
