@@ -270,7 +270,13 @@ fn unknown_in_front(
         }
         other => other.map(<[f32]>::to_vec),
     };
-    Ok(Some((observed, shaded)))
+    Ok(Some(Marked { observed, shaded }))
+}
+
+/// A job's observed images with what stands in front of the object marked unknown.
+struct Marked {
+    observed: Vec<f32>,
+    shaded: Option<Vec<f32>>,
 }
 
 /// The turns (radians) of [`turned_starts`]: 0, +`step`, -`step`, +2 `step`, -2 `step`,
@@ -487,7 +493,7 @@ impl Registrar {
             .collect::<Result<_>>()?;
         // With depth, what stands in front of the object outside its mask is unknown from
         // the start (the pose alignment compares masks alone).
-        let marked: Vec<Option<(Vec<f32>, Option<Vec<f32>>)>> = levelled
+        let marked: Vec<Option<Marked>> = levelled
             .iter()
             .map(|job| unknown_in_front(job, params))
             .collect::<Result<_>>()?;
@@ -496,9 +502,9 @@ impl Registrar {
             .zip(&marked)
             .map(|(job, marked)| match marked {
                 None => *job,
-                Some((observed, shaded)) => Job {
-                    observed,
-                    shaded: shaded.as_deref(),
+                Some(marked) => Job {
+                    observed: &marked.observed,
+                    shaded: marked.shaded.as_deref(),
                     ..*job
                 },
             })
