@@ -240,10 +240,7 @@ pub struct Registration {
 /// With depth and an occlusion tolerance: the job's mask (and shading) with the pixels
 /// that its depth shows in front of the object marked unknown
 /// ([`crate::loss::in_front_of_mask`], per view); None where nothing is.
-fn unknown_in_front(
-    job: &Job,
-    params: &RegisterParams,
-) -> Result<Option<(Vec<f32>, Option<Vec<f32>>)>> {
+fn unknown_in_front(job: &Job, params: &RegisterParams) -> Result<Option<Marked>> {
     let (Some(loss), Some(depth)) = (params.depth, job.depth) else {
         return Ok(None);
     };
