@@ -160,3 +160,15 @@ pub fn parse_view(intrinsics: &str, size: &str, pose: &str, near: f64) -> Result
         pose: Pose::new([tx, ty, tz], [rx, ry, rz])?,
     })
 }
+
+/// The `--code-prior` flag: `auto` (the weight the observation's pixel count implies,
+/// [`vkdr::register::observation_prior`]), or a weight in [0, 1] (0: none).
+pub fn code_prior(text: &str, pixels: usize) -> Result<f64> {
+    if text == "auto" {
+        return Ok(vkdr::register::observation_prior(pixels));
+    }
+    match text.parse::<f64>() {
+        Ok(w) if w.is_finite() && (0.0..=1.0).contains(&w) => Ok(w),
+        _ => anyhow::bail!("--code-prior must be auto or a weight in [0, 1], not {text}"),
+    }
+}

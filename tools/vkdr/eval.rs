@@ -308,12 +308,12 @@ pub struct EvalSettings {
     /// mask, where the distance is given): separates what the observation tells from what
     /// the free distance costs.
     pub fix_z: bool,
-    /// Registrations per trial with pose noise: the noisy start and the starts turned
-    /// about the object's up axis by multiples of the rotation noise
-    /// ([`vkdr::register::turned_starts`]); the one with the least final loss (what the
-    /// images tell, not the error) is kept. The starts run as one batch
-    /// (`Registrar::register_from_starts`); the milliseconds are the batch's wall time and
-    /// the iterations count every start.
+    /// Starts per trial with pose noise: the noisy start and the starts turned about the
+    /// object's up axis by multiples of the rotation noise
+    /// ([`vkdr::register::turned_starts`]); each is aligned and the aligned pose with the
+    /// least loss (what the images tell, not the error) is fitted
+    /// (`Registrar::register_from_starts`); the milliseconds are the wall time and the
+    /// iterations count every start.
     pub starts: usize,
     /// A real frame's ways, rendered into each trial's first view: a box in front of the
     /// object's left half (the mask shows the visible part; with depth the box's depth is
@@ -490,6 +490,7 @@ impl Default for EvalSettings {
             known_pose: RegisterParams {
                 iterations: 30,
                 optimizer: Optimizer::Bfgs,
+                code_prior: vkdr::register::observation_prior(320 * 240),
                 ..RegisterParams::default()
             },
             // Chosen on a validation dataset (another seed): the pose alone aligned first
@@ -502,6 +503,7 @@ impl Default for EvalSettings {
                 translation_step: 0.01,
                 rotation_step: 0.05,
                 optimizer: Optimizer::Bfgs,
+                code_prior: vkdr::register::observation_prior(320 * 240),
                 ..RegisterParams::default()
             },
             dims: 5,
@@ -514,7 +516,7 @@ impl Default for EvalSettings {
             views: 1,
             own_elevations: false,
             fix_z: false,
-            starts: 1,
+            starts: 5,
             occluder: false,
             table: false,
             depth_holes: 0.0,

@@ -92,15 +92,16 @@ pub struct Args {
     /// (as with one mask).
     #[arg(long)]
     fix_z: bool,
-    /// With pose noise: registrations per trial, from the noisy start and from it turned
-    /// about the up axis by +-15, +-30, ... degrees (the rotation noise); the one with the
-    /// least final loss is kept (1 to 8; the time columns count every start).
-    #[arg(long, default_value_t = 1)]
+    /// With pose noise: starts per trial, the noisy start and it turned about the up axis
+    /// by +-15, +-30, ... degrees (the rotation noise); each is aligned and the aligned
+    /// pose with the least loss is fitted (1 to 8; the time columns count every start).
+    #[arg(long, default_value_t = vkdr_app::eval::EvalSettings::default().starts)]
     starts: usize,
-    /// With pose noise: weight of a Gaussian prior on the code (RegisterParams::code_prior;
-    /// with the pose known the images leave no shift of the shape open). 0: none.
-    #[arg(long, allow_negative_numbers = true, default_value_t = 0.0)]
-    code_prior: f64,
+    /// Weight of the Gaussian prior on the code in training standard deviations
+    /// (RegisterParams::code_prior), in both conditions: auto (the weight the image's
+    /// pixel count implies, register::observation_prior) or a number (0: none).
+    #[arg(long, allow_hyphen_values = true, default_value = "auto")]
+    code_prior: String,
     /// A box in front of the left half of each object in the first view (with --depth its
     /// depth is measured and occlusion is found from the data; without, its pixels are
     /// unknown, as BOP's mask less mask_visib).
@@ -195,7 +196,10 @@ pub fn run(args: &Args) -> Result<()> {
         bail!("--starts must be 1 to 8, not {}", args.starts);
     }
     settings.starts = args.starts;
-    settings.pose_noise.code_prior = args.code_prior;
+    let pixels = (settings.camera.width * settings.camera.height) as usize;
+    let prior = crate::args::code_prior(&args.code_prior, pixels)?;
+    settings.known_pose.code_prior = prior;
+    settings.pose_noise.code_prior = prior;
     settings.occluder = args.occluder;
     settings.table = args.table;
     if !(args.depth_holes.is_finite() && (0.0..=0.9).contains(&args.depth_holes)) {
@@ -835,7 +839,7 @@ pub fn write_reports(
         known.optimizer.name(), known.iterations, known.loss.name(), noisy.align, noisy.align_loss.name(),
         noisy.optimizer.name(), noisy.iterations,
         if noisy.code_prior > 0.0 {
-            format!("{} loss, plus a code prior of weight {}", noisy.loss.name(), noisy.code_prior)
+            format!("{} loss, plus a code prior of weight {:.3e} in training SD, both conditions", noisy.loss.name(), noisy.code_prior)
         } else {
             noisy.loss.name().to_string()
         },
@@ -845,7 +849,7 @@ pub fn write_reports(
             s.light, s.ambient
         )),
         if settings.starts > 1 {
-            format!(" Pose noise: {} starts per trial (the noisy start, and it turned about the up axis by {}), the least final loss kept; its iterations and ms count every start.",
+            format!(" Pose noise: {} starts per trial (the noisy start, and it turned about the up axis by {}), each aligned, the joint fit from the aligned one with the least loss; its iterations and ms count every start.",
                 settings.starts,
                 vkdr::register::start_turns(settings.starts, settings.rotation_noise)[1..].iter().map(|t| format!("{:+.0} deg", t.to_degrees())).collect::<Vec<_>>().join(", "))
         } else {

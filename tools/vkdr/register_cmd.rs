@@ -81,14 +81,17 @@ pub struct Args {
     /// The optimiser (default: that of `vkdr eval`'s condition).
     #[arg(long, value_enum)]
     optimizer: Option<OptimizerChoice>,
-    /// Weight of a Gaussian prior on the code (0: none); with --optimize-pose it keeps the
-    /// shape from drifting against the pose where the images cannot tell them apart.
-    #[arg(long, allow_negative_numbers = true, default_value_t = 0.0)]
-    code_prior: f64,
-    /// With --optimize-pose: register from this many starts at once, the initial pose and
-    /// it turned about the object's --up axis by +-15, +-30, ... degrees, and keep the one
-    /// with the least final loss (1 to 8; against a rotation that stops in a local minimum).
-    #[arg(long, default_value_t = 1)]
+    /// Weight of the Gaussian prior on the code in training standard deviations: auto (the
+    /// weight the image's pixel count implies, register::observation_prior) or a number
+    /// (0: none). It settles what the images leave open, such as a shape shifted in its
+    /// own frame against a shifted pose.
+    #[arg(long, allow_hyphen_values = true, default_value = "auto")]
+    code_prior: String,
+    /// With --optimize-pose: starts, the initial pose and it turned about the object's
+    /// --up axis by +-15, +-30, ... degrees; each is aligned and the aligned pose with the
+    /// least loss is fitted (1 to 8; against a rotation that stops in a local minimum;
+    /// 5 starts cost about 1.8 times one).
+    #[arg(long, default_value_t = vkdr_app::eval::EvalSettings::default().starts)]
     starts: usize,
     /// The object's up axis for --starts and --gravity, in its own frame: x,y,z.
     #[arg(long, default_value = "0,1,0")]
@@ -392,7 +395,8 @@ pub fn run(args: &Args) -> Result<()> {
     if !(1..=8).contains(&args.starts) {
         bail!("--starts must be 1 to 8, not {}", args.starts);
     }
-    if args.starts > 1 && !args.optimize_pose {
+    let default_starts = vkdr_app::eval::EvalSettings::default().starts;
+    if args.starts > 1 && args.starts != default_starts && !args.optimize_pose {
         bail!("--starts turns the starting pose: give --optimize-pose too");
     }
     let up = DVec3::from_array(parse_numbers::<3>(&args.up, "--up")?);
@@ -438,7 +442,10 @@ pub fn run(args: &Args) -> Result<()> {
         shading: args.shading.shading()?,
         depth: observed.depth.is_some().then_some(depth_loss),
         optimize_z: base.optimize_z || (args.optimize_pose && observes_z),
-        code_prior: args.code_prior,
+        code_prior: crate::args::code_prior(
+            &args.code_prior,
+            (view.camera.width * view.camera.height) as usize,
+        )?,
         optimize_scale: args.optimize_scale,
         ..base
     };
@@ -453,7 +460,8 @@ pub fn run(args: &Args) -> Result<()> {
         gravity,
         ..Job::new(&space, &observed.mask, view)
     };
-    let starts = turned_starts(view.pose, up, args.starts, settings.rotation_noise);
+    let count = if args.optimize_pose { args.starts } else { 1 };
+    let starts = turned_starts(view.pose, up, count, settings.rotation_noise);
     let result = eval_cmd::register(&ctx, job, &starts, &params, &args.out)?;
     // With several starts, `iterations` counts every start's; the kept run's are its losses.
     let kept = result.losses.len().max(1);

@@ -306,7 +306,7 @@ fn bad_input_exits_non_zero_naming_the_problem_and_keeps_existing_files() {
         case(&eval(&["--starts", "0"]), "--starts"),
         case(&eval(&["--depth", "--depth-noise", "-1"]), "--depth-noise"),
         case(&eval(&["--dims", "0"]), "--dims"),
-        case(&eval(&["--code-prior", "-1"]), "code prior -1"),
+        case(&eval(&["--code-prior", "-1"]), "--code-prior must be auto or a weight in [0, 1], not -1"),
         case(
             &["eval", "--dataset", "empty_tests", "--out", "OUT"],
             "no meshes",
