@@ -27,6 +27,9 @@ pub struct SupportPlane {
 /// Metres from the plane within which a measured point counts as on it (a few times a
 /// consumer sensor's noise at a metre).
 pub const INLIER_DISTANCE: f64 = 0.006;
+/// Metres: the object's lowest measured points (its lowest fiftieth) lie within this of a
+/// plane that supports it; nearer than [`INLIER_DISTANCE`] below it they may not lie.
+const TOUCHING: f64 = 0.03;
 /// RANSAC hypotheses.
 const HYPOTHESES: usize = 300;
 /// The fewest measured pixels around the mask that a fit takes.
@@ -34,8 +37,12 @@ const MIN_CANDIDATES: usize = 50;
 
 /// Fits the support plane to the measured pixels (`depth` in metres, 0 = none,
 /// `[row][column]` of `camera`'s size) outside `mask` (nonzero = object) within `margin`
-/// times the mask's box size around it. Seeded: the same input gives the same plane. An
-/// error where too few pixels are measured there or no plane holds a fifth of them.
+/// times the mask's box size around it: the plane with the most of them within
+/// [`INLIER_DISTANCE`] that has the object's measured points on one side and touching it
+/// (its lowest within [`TOUCHING`]) and the camera on that side too, so that an occluder
+/// or a wall is not taken for it.
+/// Seeded: the same input gives the same plane. An error where too few pixels are
+/// measured there or no such plane holds a fifth of them.
 pub fn fit_support_plane(
     camera: &Camera,
     depth: &[f32],
@@ -71,10 +78,10 @@ pub fn fit_support_plane(
         lo = (lo.0.min(x), lo.1.min(y));
         hi = (hi.0.max(x), hi.1.max(y));
     }
-    let grow = |a: usize, b: usize, n: usize| {
-        let pad = ((b - a + 1) as f64 * margin).ceil() as usize;
-        (a.saturating_sub(pad), (b + pad).min(n - 1))
-    };
+    // The same margin on every side, from the box's larger side: a narrow mask (an
+    // upright bottle, or half of one behind an occluder) still gets the table beside it.
+    let pad = ((hi.0 - lo.0 + 1).max(hi.1 - lo.1 + 1) as f64 * margin).ceil() as usize;
+    let grow = |a: usize, b: usize, n: usize| (a.saturating_sub(pad), (b + pad).min(n - 1));
     let (x0, x1) = grow(lo.0, hi.0, w);
     let (y0, y1) = grow(lo.1, hi.1, h);
     let candidates: Vec<DVec3> = (y0..=y1)
@@ -97,6 +104,28 @@ pub fn fit_support_plane(
             .filter(|p| (n.dot(**p) - d).abs() <= INLIER_DISTANCE)
             .count()
     };
+    // The object's measured points: a support plane has them on one side, touching it
+    // (an occluder in front of the object, or a wall behind it, does not).
+    let on_object: Vec<DVec3> = object
+        .iter()
+        .filter(|&&i| depth[i] > 0.0)
+        .map(|&i| back_project(i))
+        .collect();
+    let supports = |n: DVec3, d: f64| {
+        if on_object.len() < 10 {
+            return true;
+        }
+        let mut heights: Vec<f64> = on_object.iter().map(|p| n.dot(*p) - d).collect();
+        heights.sort_by(f64::total_cmp);
+        let median = heights[heights.len() / 2];
+        let sign = if median < 0.0 { -1.0 } else { 1.0 };
+        let mut heights: Vec<f64> = heights.iter().map(|h| h * sign).collect();
+        heights.sort_by(f64::total_cmp);
+        let low = heights[heights.len() / 50];
+        // The camera looks at the object from the side it stands on.
+        let camera_above = -d * sign > 0.0;
+        low > -2.0 * INLIER_DISTANCE && low < TOUCHING && camera_above
+    };
     let mut best: Option<(usize, DVec3, f64)> = None;
     for _ in 0..HYPOTHESES {
         let (a, b, c) = (pick(), pick(), pick());
@@ -107,7 +136,7 @@ pub fn fit_support_plane(
         let n = n.normalize();
         let d = n.dot(a);
         let count = count_inliers(n, d);
-        if best.is_none_or(|(most, _, _)| count > most) {
+        if best.is_none_or(|(most, _, _)| count > most) && supports(n, d) {
             best = Some((count, n, d));
         }
     }
@@ -149,11 +178,6 @@ pub fn fit_support_plane(
         .unwrap_or(n);
     let mut normal = least.normalize();
     // Up is the side the object is on (where nothing of it is measured, the camera's).
-    let on_object: Vec<DVec3> = object
-        .iter()
-        .filter(|&&i| depth[i] > 0.0)
-        .map(|&i| back_project(i))
-        .collect();
     let towards = if on_object.is_empty() {
         -centre
     } else {

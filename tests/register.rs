@@ -479,6 +479,7 @@ fn eval_measures_every_condition() {
         "b1",
         &test,
         &settings,
+        vkdr_app::eval::TrialSource::Rendered,
         |_, _| {},
     )
     .unwrap();

@@ -74,6 +74,7 @@ pub fn run(args: &Args) -> Result<()> {
             "test_00",
             &test,
             settings,
+            vkdr_app::eval::TrialSource::Rendered,
             |_, _| {},
         )
     };

@@ -902,6 +902,7 @@ pub fn cluster_holes(depth: &mut [f32], width: usize, fraction: f64, rng: &mut R
 }
 
 /// What cameras at `views` observe of `mesh`, each image `[view][row][column]`.
+#[derive(Clone)]
 pub struct Observation {
     /// The mask: 1 where the mesh covers the pixel centre, else 0.
     pub mask: Vec<f32>,
@@ -1015,6 +1016,128 @@ pub fn as_seen(vertices: &[DVec3], registered: Pose, pose: Pose) -> Vec<DVec3> {
         .collect()
 }
 
+/// One trial's scene: the view (the true pose), further cameras and what they observe.
+#[derive(Clone)]
+pub struct TrialScene {
+    /// The first camera's azimuth and elevation about the object, radians.
+    pub azimuth: f64,
+    pub elevation: f64,
+    /// The true object-to-camera pose (the first view's).
+    pub pose: Pose,
+    pub view: View,
+    pub others: Vec<OtherView>,
+    pub observed: Observation,
+}
+
+/// Where [`evaluate_instance`]'s trials come from.
+#[derive(Clone, Copy)]
+pub enum TrialSource<'a> {
+    /// Rendered from the test instance at random views, with the settings' real frames'
+    /// ways (occluder, table, depth noise and holes).
+    Rendered,
+    /// One observed frame (its true pose given), the same in every trial: the trials differ
+    /// in their pose noise.
+    Frame(&'a TrialScene),
+}
+
+/// A rendered trial: random views of `test` (and `table` under it) with the settings'
+/// occluder, depth noise and holes.
+pub fn render_trial(
+    ctx: &Context,
+    registrar: &Registrar,
+    test: &Mesh,
+    table: Option<&Mesh>,
+    settings: &EvalSettings,
+    rng: &mut Rng,
+) -> Result<TrialScene> {
+    let cameras = trial_cameras(rng, settings);
+    let (azimuth, elevation) = cameras[0];
+    let pose = view_pose_up(settings.up, azimuth, elevation, settings.distance);
+    let view = View {
+        camera: settings.camera,
+        pose,
+    };
+    let others: Vec<OtherView> = cameras[1..]
+        .iter()
+        .map(|&(azimuth, elevation)| {
+            let other = view_pose_up(settings.up, azimuth, elevation, settings.distance);
+            OtherView {
+                camera: settings.camera,
+                from_first: pose.inverse().followed_by(&other),
+            }
+        })
+        .collect();
+    let views = vkdr::register::all_views(view, &others);
+    let with_surroundings = settings.occluder || settings.table;
+    let mut observed = observe(
+        ctx,
+        registrar,
+        test,
+        &views,
+        settings.depth.is_some() || with_surroundings,
+        settings.shading,
+    )?;
+    let n = (settings.camera.width * settings.camera.height) as usize;
+    if let Some(table) = table {
+        let seen = observe(ctx, registrar, table, &[view], true, None)?;
+        put_in_front(&mut observed, &seen, false);
+    }
+    if settings.occluder {
+        let near = observed.depth.as_ref().map_or(settings.distance, |d| {
+            d[..n]
+                .iter()
+                .zip(&observed.mask)
+                .filter(|&(&z, &m)| m > 0.0 && z > 0.0)
+                .map(|(&z, _)| z as f64)
+                .fold(f64::INFINITY, f64::min)
+        });
+        if let Some(occluder) = occluder_before(&settings.camera, &observed.mask[..n], near)? {
+            let camera_frame = View {
+                camera: settings.camera,
+                pose: Pose::at([0.0; 3]),
+            };
+            let seen = observe(ctx, registrar, &occluder, &[camera_frame], true, None)?;
+            put_in_front(&mut observed, &seen, settings.depth.is_none());
+        }
+    }
+    if settings.depth.is_none() {
+        observed.depth = None;
+    }
+    let (mask, shaded) = (observed.mask, observed.shaded);
+    let depth: Option<Vec<f32>> = observed.depth.map(|depth| {
+        let mut depth: Vec<f32> = depth
+            .iter()
+            .map(|&z| {
+                if z > 0.0 && settings.depth_noise > 0.0 {
+                    // A measurement stays a measurement (> 0).
+                    (z as f64 + settings.depth_noise * gaussian(rng)).max(1e-4) as f32
+                } else {
+                    z
+                }
+            })
+            .collect();
+        if settings.depth_holes > 0.0 {
+            for view in depth.chunks_mut(n) {
+                let width = settings.camera.width as usize;
+                cluster_holes(view, width, settings.depth_holes, rng);
+            }
+        }
+        depth
+    });
+    Ok(TrialScene {
+        azimuth,
+        elevation,
+        pose,
+        view,
+        others,
+        observed: Observation {
+            mask,
+            depth,
+            shaded,
+        },
+    })
+}
+
 /// Evaluates one test instance against a built shape space.
 #[allow(clippy::too_many_arguments)] // the instance, its category's context, and progress
 pub fn evaluate_instance(
@@ -1025,6 +1148,7 @@ pub fn evaluate_instance(
     name: &str,
     test: &Mesh,
     settings: &EvalSettings,
+    source: TrialSource,
     mut progress: impl FnMut(usize, usize),
 ) -> Result<Row> {
     // A test instance of another size: where the scale is optimised, the oracle and the
@@ -1089,80 +1213,21 @@ pub fn evaluate_instance(
     };
     for trial in 0..settings.trials {
         progress(trial, settings.trials);
-        let cameras = trial_cameras(&mut rng, settings);
-        let (azimuth, elevation) = cameras[0];
-        let pose = view_pose_up(settings.up, azimuth, elevation, settings.distance);
-        let view = View {
-            camera: settings.camera,
+        let TrialScene {
+            azimuth,
+            elevation,
             pose,
+            view,
+            others,
+            observed,
+        } = match source {
+            TrialSource::Rendered => {
+                render_trial(ctx, registrar, test, table.as_ref(), settings, &mut rng)?
+            }
+            TrialSource::Frame(scene) => scene.clone(),
         };
-        let others: Vec<OtherView> = cameras[1..]
-            .iter()
-            .map(|&(azimuth, elevation)| {
-                let other = view_pose_up(settings.up, azimuth, elevation, settings.distance);
-                OtherView {
-                    camera: settings.camera,
-                    from_first: pose.inverse().followed_by(&other),
-                }
-            })
-            .collect();
-        let views = Job::new(space, &[], view).with_others(&others).views();
-        let with_surroundings = settings.occluder || settings.table;
-        let mut observed = observe(
-            ctx,
-            registrar,
-            test,
-            &views,
-            settings.depth.is_some() || with_surroundings,
-            settings.shading,
-        )?;
-        let n = (settings.camera.width * settings.camera.height) as usize;
-        if let Some(table) = &table {
-            let seen = observe(ctx, registrar, table, &[view], true, None)?;
-            put_in_front(&mut observed, &seen, false);
-        }
-        if settings.occluder {
-            let near = observed.depth.as_ref().map_or(settings.distance, |d| {
-                d[..n]
-                    .iter()
-                    .zip(&observed.mask)
-                    .filter(|&(&z, &m)| m > 0.0 && z > 0.0)
-                    .map(|(&z, _)| z as f64)
-                    .fold(f64::INFINITY, f64::min)
-            });
-            if let Some(occluder) = occluder_before(&settings.camera, &observed.mask[..n], near)? {
-                let camera_frame = View {
-                    camera: settings.camera,
-                    pose: Pose::at([0.0; 3]),
-                };
-                let seen = observe(ctx, registrar, &occluder, &[camera_frame], true, None)?;
-                put_in_front(&mut observed, &seen, settings.depth.is_none());
-            }
-        }
-        if settings.depth.is_none() {
-            observed.depth = None;
-        }
-        let (mask, shaded) = (observed.mask, observed.shaded);
-        let depth: Option<Vec<f32>> = observed.depth.map(|depth| {
-            let mut depth: Vec<f32> = depth
-                .iter()
-                .map(|&z| {
-                    if z > 0.0 && settings.depth_noise > 0.0 {
-                        // A measurement stays a measurement (> 0).
-                        (z as f64 + settings.depth_noise * gaussian(&mut rng)).max(1e-4) as f32
-                    } else {
-                        z
-                    }
-                })
-                .collect();
-            if settings.depth_holes > 0.0 {
-                for view in depth.chunks_mut(n) {
-                    let width = settings.camera.width as usize;
-                    cluster_holes(view, width, settings.depth_holes, &mut rng);
-                }
-            }
-            depth
-        });
+        let n = (view.camera.width * view.camera.height) as usize;
+        let (mask, shaded, depth) = (observed.mask, observed.shaded, observed.depth);
         let true_up = pose.rotation_matrix() * settings.up;
         let gravity = match settings.gravity {
             None => None,
@@ -1173,7 +1238,7 @@ pub fn evaluate_instance(
                 })?;
                 let visible: Vec<f32> = mask[..n].iter().map(|&m| m.max(0.0)).collect();
                 let plane =
-                    vkdr::support::fit_support_plane(&settings.camera, &depth[..n], &visible, 0.5)?;
+                    vkdr::support::fit_support_plane(&view.camera, &depth[..n], &visible, 0.5)?;
                 Some(plane.normal)
             }
         }
@@ -1224,7 +1289,7 @@ pub fn evaluate_instance(
         // Every start in one batch, the least final loss kept.
         let starts = turned_starts(start, settings.up, settings.starts, settings.rotation_noise);
         let first = job(View {
-            camera: settings.camera,
+            camera: view.camera,
             pose: start,
         });
         let result = registrar.register_from_starts(ctx, first, &starts, &pose_noise, |_, _| {})?;

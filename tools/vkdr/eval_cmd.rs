@@ -557,6 +557,7 @@ fn evaluate_category(
             &name,
             &mesh,
             settings,
+            eval::TrialSource::Rendered,
             |done, total| {
                 eprint!("\r  {name:<22} trial {done}/{total}  ");
             },

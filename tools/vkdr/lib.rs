@@ -2,6 +2,7 @@
 //! category dataset, the evaluation protocol of the paper's Table 1, pictures, and the
 //! checks of users' own categories.
 
+pub mod bop;
 pub mod check;
 pub mod dataset;
 pub mod eval;

@@ -9,6 +9,7 @@ mod cpd_cmd;
 mod dataset_cmd;
 mod demo_cmd;
 mod eval_cmd;
+mod frames_cmd;
 mod grad;
 mod info_cmd;
 mod out;
@@ -63,6 +64,12 @@ enum Command {
     Register(register_cmd::Args),
     /// The paper's Table 1 on a dataset: oracle, known pose and pose noise per test instance.
     Eval(eval_cmd::Args),
+    /// The evaluation on observed frames in the BOP format (visible masks, sensor depth,
+    /// ground-truth poses): known pose and pose noise per frame and object.
+    EvalFrames(frames_cmd::Args),
+    /// Render BOP-format frames of a dataset's test instances (table, occluder, depth noise
+    /// and holes) with their models and the map for eval-frames.
+    GenFrames(frames_cmd::GenArgs),
     /// The quick start: generate a dataset, build a shape space, register a held-out
     /// instance from a rendered mask with pose noise, print its Table-1 row, write pictures.
     Demo(demo_cmd::Args),
@@ -89,6 +96,8 @@ fn main() {
         Command::ShapeSpace(args) => shape_cmd::run(args),
         Command::Register(args) => register_cmd::run(args),
         Command::Eval(args) => eval_cmd::run(args),
+        Command::EvalFrames(args) => frames_cmd::run(args),
+        Command::GenFrames(args) => frames_cmd::generate(args),
         Command::Demo(args) => demo_cmd::run(args),
     };
     if let Err(e) = result {
@@ -120,6 +129,8 @@ fn claim_out(command: &Command, force: bool) -> Result<Option<PathBuf>> {
         Command::Render(args) => &args.out,
         Command::Grad(args) => &args.out,
         Command::Eval(args) => &args.out,
+        Command::EvalFrames(args) => &args.out,
+        Command::GenFrames(args) => &args.out,
         Command::BenchRegister(args) => &args.out,
         Command::Register(args) => args.out(),
     };

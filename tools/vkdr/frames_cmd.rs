@@ -1,0 +1,424 @@
+//! `vkdr eval-frames`: the evaluation on observed frames in the BOP format (real camera
+//! frames: the visible mask, the sensor's depth, the ground-truth pose), and `vkdr
+//! gen-frames`, which renders such frames from a generated dataset (with a table, an
+//! occluder, depth noise and holes) so that the whole path can be tried without one.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context as _, Result};
+use glam::DVec3;
+
+use vkdr::gpu::Context;
+use vkdr::raster::View;
+use vkdr::register::Registrar;
+use vkdr::shape::ShapeSpace;
+use vkdr::{Mesh, Pose};
+use vkdr_app::bop::{self, Frame, FrameObject, ObjectCategory};
+use vkdr_app::eval::{self, EvalSettings, GravitySource, Observation, TrialScene, TrialSource};
+
+use crate::args::DepthLossArgs;
+use crate::shape_cmd::obj_files;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// A BOP scene folder (scene_camera.json, scene_gt.json, depth/, mask_visib/, optionally
+    /// mask/ and rgb/), or a folder of them.
+    dir: PathBuf,
+    /// The map from BOP obj_id to category: {"OBJ_ID": {"category": DIR, "model": OBJ in
+    /// millimetres, "model_to_category": {"translation": [m], "rotation": [axis-angle]}}}.
+    #[arg(long)]
+    categories: PathBuf,
+    /// Pose-noise registrations per object (each from its own seeded noisy start).
+    #[arg(long, default_value_t = 3)]
+    trials: usize,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// With pose noise, keep the object's up axis within --tilt-tolerance of up: known (the
+    /// ground truth's up), from-depth (the support plane fitted around the mask) or none.
+    #[arg(long, value_parser = ["known", "from-depth", "none"], default_value = "from-depth")]
+    gravity: String,
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
+    tilt_tolerance: f64,
+    /// Fit one uniform scale of the shape too (0.5 to 1.5): instances of their own size.
+    #[arg(long)]
+    optimize_scale: bool,
+    /// Dimensions of each category's shape space.
+    #[arg(long, default_value_t = EvalSettings::default().dims)]
+    dims: usize,
+    #[command(flatten)]
+    depth_loss: DepthLossArgs,
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// A frame's object with what it needs: its category's index and its model in the
+/// category's frame.
+struct Target<'a> {
+    frame: &'a Frame,
+    object: &'a FrameObject,
+    category: usize,
+}
+
+pub fn run(args: &Args) -> Result<()> {
+    if !(2..=1000).contains(&args.trials) {
+        bail!(
+            "--trials must be 2 to 1000 (a spread needs two), not {}",
+            args.trials
+        );
+    }
+    let map = bop::read_map(&args.categories)?;
+    // Every frame is read and checked before any work.
+    let mut frames = Vec::new();
+    for scene in bop::scene_dirs(&args.dir)? {
+        frames.extend(bop::read_scene(&scene)?);
+    }
+    let categories: Vec<PathBuf> = {
+        let mut dirs: Vec<PathBuf> = map.values().map(|c| c.category.clone()).collect();
+        dirs.sort();
+        dirs.dedup();
+        dirs
+    };
+    let mut targets = Vec::new();
+    for frame in &frames {
+        for object in &frame.objects {
+            let Some(entry) = map.get(&object.obj_id) else {
+                bail!(
+                    "{}/scene_gt.json image {} object {}: obj_id {} is not in {} (it maps {})",
+                    frame.scene,
+                    frame.image,
+                    object.gt_index,
+                    object.obj_id,
+                    args.categories.display(),
+                    map.keys()
+                        .map(|k| k.to_string())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                );
+            };
+            let category = categories
+                .iter()
+                .position(|c| *c == entry.category)
+                .expect("every mapped category is listed");
+            targets.push(Target {
+                frame,
+                object,
+                category,
+            });
+        }
+    }
+    let models: BTreeMap<u64, Mesh> = map
+        .iter()
+        .map(|(id, entry)| Ok((*id, model_in_category(entry)?)))
+        .collect::<Result<_>>()?;
+    let mut base = EvalSettings {
+        trials: args.trials,
+        seed: args.seed,
+        dims: args.dims,
+        depth: Some(args.depth_loss.loss()?),
+        tilt_tolerance: args.tilt_tolerance.to_radians(),
+        gravity: match args.gravity.as_str() {
+            "known" => Some(GravitySource::Known),
+            "from-depth" => Some(GravitySource::FromDepth),
+            _ => None,
+        },
+        ..Default::default()
+    };
+    base.known_pose.optimize_scale = args.optimize_scale;
+    base.pose_noise.optimize_scale = args.optimize_scale;
+
+    let ctx = Context::new()?;
+    let device = format!("{} ({})", ctx.info().name, ctx.info().driver_info);
+    let registrar = Registrar::new(&ctx)?;
+    let mut spaces: Vec<(String, ShapeSpace, DVec3)> = Vec::new();
+    for dir in &categories {
+        let checked = crate::check_cmd::check_first(dir, false, false)?;
+        let name = dir
+            .file_name()
+            .unwrap_or_default()
+            .to_string_lossy()
+            .into_owned();
+        let canonical = Mesh::load_obj(dir.join("canonical.obj"))?;
+        let training: Vec<(String, Vec<DVec3>)> = obj_files(&dir.join("train"))?
+            .iter()
+            .map(|f| Ok((f.display().to_string(), Mesh::load_obj(f)?.points())))
+            .collect::<Result<_>>()?;
+        eprintln!(
+            "{name}: shape space from {} training instances",
+            training.len()
+        );
+        let space = ShapeSpace::build(
+            &ctx,
+            &name,
+            &canonical,
+            &training,
+            base.dims,
+            &base.cpd,
+            |_, _, _| {},
+        )?;
+        spaces.push((name, space, checked.info.up));
+    }
+
+    let mut rows = Vec::new();
+    for target in &targets {
+        let (category, space, up) = &spaces[target.category];
+        let frame = target.frame;
+        let pose = map[&target.object.obj_id]
+            .model_to_category
+            .inverse()
+            .followed_by(&target.object.model_to_camera);
+        let settings = EvalSettings {
+            camera: frame.camera,
+            distance: pose.translation.length(),
+            up: *up,
+            ..base.clone()
+        };
+        let scene = frame_scene(frame, target.object, pose)?;
+        let name = format!(
+            "{}/{:06}/{}",
+            frame.scene, frame.image, target.object.gt_index
+        );
+        let row = eval::evaluate_instance(
+            &ctx,
+            &registrar,
+            space,
+            category,
+            &name,
+            &models[&target.object.obj_id],
+            &settings,
+            TrialSource::Frame(&scene),
+            |done, total| eprint!("\r  {name:<22} trial {done}/{total}  "),
+        )?;
+        eprintln!(
+            "\r  {name:<22} known pose {:.2} mm ({:.2}x the space optimum), pose noise as seen {:.2} mm",
+            1e3 * row.known_pose.mean,
+            row.known_pose.mean / row.space_optimum,
+            1e3 * row.pose_noise_seen.mean
+        );
+        rows.push(row);
+        crate::eval_cmd::write_reports(&args.out, &rows, &base, &device)?;
+    }
+    print!("{}", std::fs::read_to_string(args.out.join("table.md"))?);
+    println!(
+        "wrote {0}/table.md, table.csv, table.json, trials.csv, speed_vs_error.png",
+        args.out.display()
+    );
+    Ok(())
+}
+
+/// The object's model (an OBJ in millimetres) in its category's frame (metres).
+fn model_in_category(entry: &ObjectCategory) -> Result<Mesh> {
+    let model = Mesh::load_obj(&entry.model)
+        .with_context(|| format!("the model of {}", entry.category.display()))?;
+    let points: Vec<DVec3> = model
+        .points()
+        .iter()
+        .map(|p| entry.model_to_category.apply(*p * 1e-3))
+        .collect();
+    Ok(model.with_points(&points)?)
+}
+
+/// One object of a frame as a trial's scene: the visible mask, with the pixels the whole
+/// mask adds (hidden by something in front) unknown, and the frame's depth.
+fn frame_scene(frame: &Frame, object: &FrameObject, pose: Pose) -> Result<TrialScene> {
+    let mut mask = object.visible.clone();
+    if let Some(whole) = &object.whole {
+        let hidden: Vec<f32> = whole
+            .iter()
+            .zip(&object.visible)
+            .map(|(&w, &v)| (w > 0.0 && v == 0.0) as u32 as f32)
+            .collect();
+        vkdr::loss::mark_unknown(&mut mask, 1, &hidden)?;
+    }
+    Ok(TrialScene {
+        azimuth: 0.0,
+        elevation: 0.0,
+        pose,
+        view: View {
+            camera: frame.camera,
+            pose,
+        },
+        others: Vec::new(),
+        observed: Observation {
+            mask,
+            depth: Some(frame.depth.clone()),
+            shaded: None,
+        },
+    })
+}
+
+#[derive(clap::Args)]
+pub struct GenArgs {
+    /// A category dataset (`vkdr gen-dataset`): the frames show its test instances.
+    #[arg(long)]
+    dataset: PathBuf,
+    /// Only these categories (comma-separated).
+    #[arg(long)]
+    categories: Option<String>,
+    /// Frames per test instance, each from its own random view.
+    #[arg(long, default_value_t = 1)]
+    frames: usize,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// A box in front of the left half of each object.
+    #[arg(long)]
+    occluder: bool,
+    /// Standard deviation of the depth's noise, metres.
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.002)]
+    depth_noise: f64,
+    /// Fraction of the depth missing, in clusters.
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.1)]
+    depth_holes: f64,
+    /// Scale every test instance by this (its model is the scaled instance).
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
+    test_scale: f64,
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// The model frame of the written models: z up (as many scanned models), the category's y
+/// up turned onto it, and shifted, so that the map's transform is exercised.
+fn category_to_model() -> Pose {
+    Pose {
+        translation: DVec3::new(0.003, -0.002, 0.01),
+        rotation: DVec3::new(std::f64::consts::FRAC_PI_2, 0.0, 0.0),
+    }
+}
+
+/// `vkdr gen-frames`: one BOP scene (OUT/000000) of rendered frames, the models
+/// (OUT/models, millimetres) and the map (OUT/map.json) for `vkdr eval-frames`.
+pub fn generate(args: &GenArgs) -> Result<()> {
+    if !(1..=100).contains(&args.frames) {
+        bail!("--frames must be 1 to 100, not {}", args.frames);
+    }
+    if !(args.depth_noise.is_finite() && (0.0..=0.1).contains(&args.depth_noise)) {
+        bail!("--depth-noise must be 0 to 0.1 m, not {}", args.depth_noise);
+    }
+    if !(args.depth_holes.is_finite() && (0.0..=0.9).contains(&args.depth_holes)) {
+        bail!("--depth-holes must be 0 to 0.9, not {}", args.depth_holes);
+    }
+    if !(args.test_scale.is_finite() && (0.1..=10.0).contains(&args.test_scale)) {
+        bail!("--test-scale must be 0.1 to 10, not {}", args.test_scale);
+    }
+    let only: Option<Vec<String>> = args
+        .categories
+        .as_deref()
+        .map(|c| c.split(',').map(|s| s.trim().to_string()).collect());
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(&args.dataset)
+        .with_context(|| format!("reading {}", args.dataset.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.join("canonical.obj").is_file() && p.join("test").is_dir())
+        .filter(|p| {
+            only.as_ref().is_none_or(|o| {
+                o.iter()
+                    .any(|c| p.file_name().is_some_and(|n| n.to_string_lossy() == *c))
+            })
+        })
+        .collect();
+    dirs.sort();
+    if dirs.is_empty() {
+        bail!(
+            "{} has no category folders{}",
+            args.dataset.display(),
+            if only.is_some() {
+                " of --categories"
+            } else {
+                ""
+            }
+        );
+    }
+    let ctx = Context::new()?;
+    let registrar = Registrar::new(&ctx)?;
+    let scene_dir = args.out.join("000000");
+    let models_dir = args.out.join("models");
+    std::fs::create_dir_all(&models_dir)
+        .with_context(|| format!("creating {}", models_dir.display()))?;
+    let mut rng = vkdr_app::dataset::Rng::new(args.seed);
+    let mut map = serde_json::Map::new();
+    let (mut obj_id, mut image) = (0u64, 0u64);
+    for dir in &dirs {
+        let up = vkdr_app::check::Info::read(dir)?.up;
+        let settings = EvalSettings {
+            up,
+            depth: Some(vkdr::diff::DepthLoss::default()),
+            depth_noise: args.depth_noise,
+            depth_holes: args.depth_holes,
+            occluder: args.occluder,
+            table: true,
+            ..Default::default()
+        };
+        for test_path in obj_files(&dir.join("test"))? {
+            obj_id += 1;
+            let test = Mesh::load_obj(&test_path)?;
+            let test = test.with_points(
+                &test
+                    .points()
+                    .iter()
+                    .map(|p| *p * args.test_scale)
+                    .collect::<Vec<_>>(),
+            )?;
+            let to_model = category_to_model();
+            let model = test.with_points(
+                &test
+                    .points()
+                    .iter()
+                    .map(|p| to_model.apply(*p) * 1e3)
+                    .collect::<Vec<_>>(),
+            )?;
+            let model_name = format!("obj_{obj_id:06}.obj");
+            model.save_obj(models_dir.join(&model_name))?;
+            let to_category = to_model.inverse();
+            map.insert(
+                obj_id.to_string(),
+                serde_json::json!({
+                    "category": pathdiff(dir, &args.out),
+                    "model": format!("models/{model_name}"),
+                    "model_to_category": {
+                        "translation": to_category.translation.to_array(),
+                        "rotation": to_category.rotation.to_array(),
+                    },
+                }),
+            );
+            let table = eval::table_under(&test, up)?;
+            for _ in 0..args.frames {
+                let scene =
+                    eval::render_trial(&ctx, &registrar, &test, Some(&table), &settings, &mut rng)?;
+                let whole = eval::render_mask(&ctx, &registrar, &test, scene.view)?;
+                let depth = scene.observed.depth.clone().expect("rendered with depth");
+                let frame = Frame {
+                    scene: "000000".into(),
+                    image,
+                    camera: scene.view.camera,
+                    depth,
+                    objects: vec![FrameObject {
+                        gt_index: 0,
+                        obj_id,
+                        model_to_camera: to_category.followed_by(&scene.pose),
+                        visible: scene.observed.mask.iter().map(|&m| m.max(0.0)).collect(),
+                        whole: Some(whole),
+                    }],
+                };
+                bop::write_frame(&scene_dir, &frame, 0.1)?;
+                image += 1;
+            }
+        }
+    }
+    vkdr::io::write_json(&args.out.join("map.json"), &serde_json::Value::Object(map))?;
+    println!(
+        "wrote {image} frames of {obj_id} objects to {} (BOP: depth in tenths of a millimetre), \
+         their models to {} and the map to {}",
+        scene_dir.display(),
+        models_dir.display(),
+        args.out.join("map.json").display()
+    );
+    Ok(())
+}
+
+/// `path` relative to `base` where it lies under the same folder as written, else absolute.
+fn pathdiff(path: &Path, base: &Path) -> String {
+    let absolute = |p: &Path| std::fs::canonicalize(p).unwrap_or_else(|_| p.to_path_buf());
+    absolute(path)
+        .display()
+        .to_string()
+        .replace(&format!("{}/", absolute(base).display()), "")
+}
