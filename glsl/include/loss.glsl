@@ -27,7 +27,12 @@ vec4 blended(vec4 v) {
 // The channels compared by mse (all but depth).
 uint mse_channels() { return max(CHANNELS, 1u) - DEPTH; }
 
-// Whether pixel `index` compares depth; `residual` is rendered - observed there.
+// Whether pixel `index` compares depth; `residual` is rendered - observed there. Depth is
+// compared where the rendering covers the pixel, the observation measured depth and its
+// channel 0 (the mask, or the shading, 0 off the mask) shows the object: elsewhere the
+// measurement is of another surface (the table behind, an occluder in front), whose
+// distance from the rendered surface would make every pixel the silhouette sweeps over
+// jump by its whole Huber cost; the mask term places the silhouette.
 bool depth_compared(uint index, vec4 a, out float residual) {
     residual = 0.0;
     if (DEPTH == 0u || ids[index] == 0u) return false;
@@ -35,7 +40,7 @@ bool depth_compared(uint index, vec4 a, out float residual) {
     float o = observed[index * CHANNELS + ch];
     // Residuals past 1 km are clamped (a bound the fixed-point loss sums rely on).
     residual = clamp(a[ch] - o, -MAX_DEPTH_RESIDUAL, MAX_DEPTH_RESIDUAL);
-    return o > 0.0;
+    return o > 0.0 && observed[index * CHANNELS] > 0.0;
 }
 
 // The depth term of one pixel, Huber in units of pc.depth_scale (s): (r / s)^2 within s,

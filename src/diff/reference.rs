@@ -439,7 +439,9 @@ pub fn evaluate(problem: &Problem, positions: &[DVec3], poses: &[RigidPose]) -> 
                         let i = y * width + x;
                         let id = model.id((x, y));
                         let z = rendered_depth(x, y).unwrap_or(0.0);
-                        if id != 0 && depth[i] > 0.0 && counted[i] {
+                        // Only where the observation shows the object (loss.glsl).
+                        let on_object = observed[i * channels] > 0.0;
+                        if id != 0 && depth[i] > 0.0 && counted[i] && on_object {
                             view_loss += depth_term(&loss, z - depth[i], n as f64);
                         }
                         antialiased.extend_from_slice(&a[i * channels..(i + 1) * channels]);

@@ -50,8 +50,9 @@ pub struct Args {
     #[arg(long, requires = "observed_depth")]
     depth_scale: Option<f64>,
     /// With --observed: a PNG of the pixels whose content is unknown (nonzero: hidden by
-    /// something in front of the object, as outside BOP's mask_visib but inside its mask);
-    /// they count for nothing, neither mask nor depth.
+    /// something in front of the object; BOP's whole-object `mask` as it is, the pixels
+    /// --observed shows as object stay known); they count for nothing, neither mask nor
+    /// depth.
     #[arg(long, requires = "observed")]
     ignore: Option<PathBuf>,
     /// With --observed-mesh: observe its rendered depth too.
@@ -251,6 +252,15 @@ fn from_files(args: &Args, view: View, further: &[FurtherView]) -> Result<eval::
             (Some(path), 0) => Some(loss::load_mask(path, w, h)?),
             _ => None,
         };
+        // Only pixels the mask does not show as object become unknown: BOP's whole `mask`
+        // works as it is (the hidden part is it less mask_visib).
+        let ignore: Option<Vec<f32>> = ignore.map(|ignore| {
+            ignore
+                .iter()
+                .zip(&mask)
+                .map(|(&i, &m)| if m > 0.0 { 0.0 } else { i })
+                .collect()
+        });
         if let Some(ignore) = &ignore {
             loss::mark_unknown(&mut mask, 1, ignore)?;
         }
