@@ -127,6 +127,9 @@ pub struct MeshStats {
     pub extent: DVec3,
     /// Mean of the vertices.
     pub centroid: DVec3,
+    /// Centre of the bounding box (what "centred" means for a dataset: a dense part, as a
+    /// can's lid, moves the vertex mean but not this).
+    pub centre: DVec3,
     /// Edges of one face only (open boundaries).
     pub boundary_edges: usize,
     /// Edges of more than two faces.
@@ -182,6 +185,8 @@ impl MeshStats {
             faces: mesh.triangle_count(),
             extent,
             centroid,
+            centre: 0.5
+                * (DVec3::from_array(hi.map(f64::from)) + DVec3::from_array(lo.map(f64::from))),
             boundary_edges: edges.values().filter(|&&n| n == 1).count(),
             nonmanifold_edges: edges.values().filter(|&&n| n > 2).count(),
             components: used.len(),
@@ -194,6 +199,15 @@ impl MeshStats {
     pub fn longest_axis(&self) -> usize {
         let e = self.extent.to_array();
         (0..3).max_by(|&a, &b| e[a].total_cmp(&e[b])).unwrap_or(0)
+    }
+
+    /// Whether the longest side is clearly the longest (1.2 times the next): where two
+    /// sides are about equal (a can as tall as it is wide) which is longest says nothing
+    /// about the frame.
+    pub fn clearly_longest(&self) -> bool {
+        let mut e = self.extent.to_array();
+        e.sort_by(f64::total_cmp);
+        e[2] >= 1.2 * e[1]
     }
 }
 
@@ -399,7 +413,7 @@ pub fn check_category(dir: &Path) -> Result<Category> {
             continue;
         };
         let axes = ["x", "y", "z"];
-        if s.longest_axis() != r.longest_axis() {
+        if s.longest_axis() != r.longest_axis() && s.clearly_longest() && r.clearly_longest() {
             note(
                 Severity::Warning,
                 &s.name,
@@ -412,13 +426,13 @@ pub fn check_category(dir: &Path) -> Result<Category> {
             );
         }
         let scale = r.extent.max_element().max(f64::MIN_POSITIVE);
-        let offset = (s.centroid - r.centroid).length();
+        let offset = (s.centre - r.centre).length();
         if offset > 0.25 * scale {
             note(
                 Severity::Warning,
                 &s.name,
                 format!(
-                    "centroid {:.3} m from {}'s ({:.0}% of its size): not centred like it?",
+                    "bounding-box centre {:.3} m from {}'s ({:.0}% of its size): not centred like it?",
                     offset,
                     r.name,
                     100.0 * offset / scale

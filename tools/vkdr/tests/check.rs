@@ -167,3 +167,42 @@ fn an_unusable_category_stops_every_command_before_any_work() {
     ]);
     assert!(!ok && said.contains("no category \"cupz\""), "{said}");
 }
+
+/// Cans, y up, each centred on its bounding box: a tall canonical, a flat can wider than
+/// it is tall, and one whose lid is finely ringed (its vertex mean high above its centre).
+/// None of it is a problem, and none is reported.
+#[test]
+fn flat_and_lidded_cans_are_not_reported() {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("check_cans");
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(dir.join("train")).unwrap();
+    std::fs::create_dir_all(dir.join("test")).unwrap();
+    let can = |r: f32, h: f32, lid_rings: usize| {
+        let mut profile = vec![(r, -h / 2.0), (r, h / 2.0 - 0.004)];
+        for k in 0..lid_rings {
+            profile.push((r * (1.0 - 0.9 * k as f32 / lid_rings as f32), h / 2.0));
+        }
+        Mesh::lathe(&profile, 24).unwrap()
+    };
+    let save = |name: &str, mesh: &Mesh| mesh.save_obj(dir.join(name)).unwrap();
+    save("canonical.obj", &can(0.033, 0.115, 1));
+    save("train/flat.obj", &can(0.05, 0.07, 1));
+    save("train/lidded.obj", &can(0.033, 0.12, 40));
+    save("train/tall.obj", &can(0.03, 0.13, 1));
+    save("test/t.obj", &can(0.034, 0.11, 1));
+    let category = check::check_category(&dir).unwrap();
+    for subject in ["train/flat.obj", "train/lidded.obj"] {
+        assert!(
+            findings_of(&category, subject).is_empty(),
+            "{subject}: {:?}",
+            findings_of(&category, subject)
+        );
+    }
+    // The lid moves the vertex mean by more than a quarter of the size.
+    let lidded = category
+        .meshes
+        .iter()
+        .find(|(s, _)| s.name == "train/lidded.obj")
+        .unwrap();
+    assert!(lidded.0.centroid.y > 0.03, "{:?}", lidded.0.centroid);
+}
