@@ -57,6 +57,10 @@ pub struct Args {
     /// poses relative to the first known.
     #[arg(long, default_value_t = 1)]
     pub views: usize,
+    /// Starts of the registration from starts (each aligned, the best fitted: the default
+    /// of `vkdr eval` and `vkdr register` with pose noise), timed against one start.
+    #[arg(long, default_value_t = eval::EvalSettings::default().starts)]
+    pub starts: usize,
     /// Reuse the space.npz of an earlier run with the same category, subdivision and seed.
     #[arg(long)]
     pub space: Option<PathBuf>,
@@ -211,6 +215,10 @@ pub fn run(args: &Args) -> Result<()> {
     params.depth = args.depth.then(DepthLoss::default);
     params.optimize_z = args.depth || args.views > 1;
     params.check_every = args.iterations; // no plateau stop: every run does all iterations
+    params.code_prior = vkdr::register::observation_prior((width * height) as usize);
+    if !(1..=8).contains(&args.starts) {
+        bail!("--starts must be 1 to 8, not {}", args.starts);
+    }
 
     // One registration, end to end (scene set-up included), after a warm-up.
     registrar.register_batch(ctx, &jobs[..1], &params, |_, _| {})?;
@@ -225,6 +233,35 @@ pub fn run(args: &Args) -> Result<()> {
     }
     eprintln!();
     let wall = median(walls.clone());
+    // The same registration from starts turned about the up axis, each aligned and the
+    // best fitted, timed in turn with one start so that both see the same machine.
+    let starts = vkdr::register::turned_starts(
+        jobs[0].view.pose,
+        settings.up,
+        args.starts,
+        settings.rotation_noise,
+    );
+    let (mut one, mut many) = (Vec::new(), Vec::new());
+    let mut from_starts = None;
+    for r in 0..args.repeats {
+        eprint!(
+            "\r  one start against {} starts {}/{}",
+            args.starts,
+            r + 1,
+            args.repeats
+        );
+        let t = Instant::now();
+        registrar.register_batch(ctx, &jobs[..1], &params, |_, _| {})?;
+        one.push(t.elapsed().as_secs_f64() * 1e3);
+        let t = Instant::now();
+        from_starts =
+            Some(registrar.register_from_starts(ctx, jobs[0], &starts, &params, |_, _| {})?);
+        many.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    eprintln!();
+    let ratios: Vec<f64> = many.iter().zip(&one).map(|(m, o)| m / o).collect();
+    let starts_ratio = median(ratios);
+    let from_starts = from_starts.expect("at least one repeat");
     let passes = registrar.profile(ctx, &jobs[0], &params, args.iterations)?;
     let median_of = |f: fn(&PassTimes) -> f64| median(passes.iter().map(f).collect());
     let pass = PassTimes {
@@ -267,6 +304,11 @@ pub fn run(args: &Args) -> Result<()> {
         &eval::as_seen(&run.vertices, run.pose, pose),
         triangles,
     );
+    let seen_starts = surface_error(
+        &truth,
+        &eval::as_seen(&from_starts.vertices, from_starts.pose, pose),
+        triangles,
+    );
     let batch_errors: Vec<f64> = batched_results
         .iter()
         .map(|r| surface_error(&truth, &r.vertices, triangles) / oracle)
@@ -291,7 +333,9 @@ pub fn run(args: &Args) -> Result<()> {
          | oracle error | {oracle:.2} mm |\n\
          | error at the start (mean shape) / end | {start:.2} / {end:.2} mm ({ratio:.2}x oracle) |\n\
          | error at the end as seen (at its registered pose, against the test surface at the true one) | {seen:.2} mm ({seen_ratio:.2}x oracle) |\n\
-         | batched runs' error / oracle | {batch_errors} |\n",
+         | batched runs' error / oracle | {batch_errors} |\n\
+         | {starts} starts (each aligned, the best fitted) / one start, wall (median of {reps} pairs, the code prior in both) | {starts_ratio:.2} |\n\
+         | error at the end as seen from {starts} starts | {seen_starts:.2} mm ({seen_starts_ratio:.2}x oracle) |\n",
         category = args.category,
         observed = match shading {
             Some(s) => format!(
@@ -331,6 +375,9 @@ pub fn run(args: &Args) -> Result<()> {
         ratio = curve.last().map_or(f64::NAN, |c| c.1) / oracle,
         seen = 1e3 * seen,
         seen_ratio = seen / oracle,
+        starts = args.starts,
+        seen_starts = 1e3 * seen_starts,
+        seen_starts_ratio = seen_starts / oracle,
         batch_errors = batch_errors
             .iter()
             .map(|e| format!("{e:.2}"))
@@ -363,6 +410,11 @@ pub fn run(args: &Args) -> Result<()> {
         "batched_ms": batched,
         "oracle_m": oracle,
         "seen_m": seen,
+        "starts": args.starts,
+        "one_start_ms": one,
+        "starts_ms": many,
+        "starts_over_one_median": starts_ratio,
+        "seen_from_starts_m": seen_starts,
         "curve": curve
             .iter()
             .map(|(t, e)| serde_json::json!({ "ms": t, "error_m": e }))
