@@ -29,7 +29,7 @@ pub struct SupportPlane {
 pub const INLIER_DISTANCE: f64 = 0.006;
 /// Metres: the object's lowest measured points (its lowest fiftieth) lie within this of a
 /// plane that supports it; nearer than [`INLIER_DISTANCE`] below it they may not lie.
-const TOUCHING: f64 = 0.03;
+pub const TOUCHING: f64 = 0.03;
 /// RANSAC hypotheses.
 const HYPOTHESES: usize = 300;
 /// The fewest measured pixels around the mask that a fit takes.
