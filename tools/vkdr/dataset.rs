@@ -1,7 +1,7 @@
 //! A generated category dataset, so that everything can be tested and shown without
-//! downloads: bottles, mugs, spray bottles and drills (composite parts), each instance a
-//! watertight, welded mesh in one common frame per category (centred, metres, y up),
-//! reproducible from a seed. Layout: `DIR/<category>/canonical.obj`, `train/*.obj`,
+//! downloads: bottles, open mugs (a wall, an inside bottom, a handle), spray bottles and
+//! drills (composite parts), each instance a watertight, welded mesh in one common frame
+//! per category (centred, metres, y up), reproducible from a seed. Layout: `DIR/<category>/canonical.obj`, `train/*.obj`,
 //! `test/*.obj`, `info.json`.
 
 use std::path::Path;
@@ -77,31 +77,6 @@ fn cylinder(r: f64, y0: f64, y1: f64, segments: u32) -> Mesh {
 }
 
 /// A closed torus in the x-y plane (ring radius big, tube radius small).
-fn torus(big: f64, small: f64, rings: u32, sides: u32) -> Mesh {
-    let mut positions = Vec::new();
-    for i in 0..rings {
-        let u = std::f64::consts::TAU * i as f64 / rings as f64;
-        for j in 0..sides {
-            let v = std::f64::consts::TAU * j as f64 / sides as f64;
-            let r = big + small * v.cos();
-            positions.push([
-                (r * u.cos()) as f32,
-                (r * u.sin()) as f32,
-                (small * v.sin()) as f32,
-            ]);
-        }
-    }
-    let at = |i: u32, j: u32| (i % rings) * sides + j % sides;
-    let mut triangles = Vec::new();
-    for i in 0..rings {
-        for j in 0..sides {
-            triangles.push([at(i, j), at(i + 1, j), at(i + 1, j + 1)]);
-            triangles.push([at(i, j), at(i + 1, j + 1), at(i, j + 1)]);
-        }
-    }
-    Mesh::new(positions, triangles).expect("a torus is valid")
-}
-
 fn bottle(rng: &mut Rng) -> Mesh {
     let h = rng.range(0.20, 0.30);
     let r = rng.range(0.028, 0.045);
@@ -150,23 +125,91 @@ fn spray_bottle(rng: &mut Rng) -> Mesh {
     centred(&merged(&[body, head, nozzle]))
 }
 
+/// A tube of radius `small` along the arc of radius `big` about (`centre_x`, 0, 0) in the
+/// xy plane, from angle `from` to `to` (radians from +x towards +y), closed at both ends.
+fn arc_tube(
+    centre_x: f64,
+    big: f64,
+    small: f64,
+    from: f64,
+    to: f64,
+    rings: u32,
+    sides: u32,
+) -> Mesh {
+    let mut positions = Vec::new();
+    let axis = |u: f64| DVec3::new(centre_x + big * u.cos(), big * u.sin(), 0.0);
+    for i in 0..rings {
+        let u = from + (to - from) * i as f64 / (rings - 1) as f64;
+        let radial = DVec3::new(u.cos(), u.sin(), 0.0);
+        for j in 0..sides {
+            let v = std::f64::consts::TAU * j as f64 / sides as f64;
+            let p = axis(u) + small * (v.cos() * radial + v.sin() * DVec3::Z);
+            positions.push(p.as_vec3().to_array());
+        }
+    }
+    let (first, last) = (rings * sides, rings * sides + 1);
+    positions.push(axis(from).as_vec3().to_array());
+    positions.push(axis(to).as_vec3().to_array());
+    let at = |i: u32, j: u32| i * sides + j % sides;
+    let mut triangles = Vec::new();
+    for i in 0..rings - 1 {
+        for j in 0..sides {
+            triangles.push([at(i, j), at(i + 1, j), at(i + 1, j + 1)]);
+            triangles.push([at(i, j), at(i + 1, j + 1), at(i, j + 1)]);
+        }
+    }
+    for j in 0..sides {
+        triangles.push([first, at(0, j), at(0, j + 1)]);
+        triangles.push([last, at(rings - 1, j + 1), at(rings - 1, j)]);
+    }
+    Mesh::new(positions, triangles).expect("an arc tube is valid")
+}
+
+/// An open mug: a wall a few millimetres thick, an inside bottom, and a handle whose ends
+/// sit in the wall (its outer quarter), not in the cavity.
 fn mug(rng: &mut Rng) -> Mesh {
     let h = rng.range(0.08, 0.115);
     let r = rng.range(0.035, 0.05);
+    let top = r * rng.range(1.0, 1.12);
+    let wall = rng.range(0.005, 0.007);
+    let base = rng.range(0.006, 0.01);
     let body = lathe_centred(
         &[
             (0.92 * r, 0.0),
             (r, 0.04 * h),
-            (r * rng.range(1.0, 1.12), h),
+            (top, h),
+            (top - wall, h),
+            (r - wall, base),
         ],
         32,
     );
-    let handle_r = rng.range(0.25, 0.38) * h;
-    let handle = transformed(
-        &torus(handle_r, rng.range(0.006, 0.009), 24, 8),
-        DMat3::IDENTITY,
-        DVec3::new(r + 0.5 * handle_r, 0.0, 0.0),
-    );
+    // The outer radius at height y of the centred body (its box is centred in y).
+    let outer = |y: f64| {
+        let t = ((y + 0.5 * h - 0.04 * h) / (0.96 * h)).clamp(0.0, 1.0);
+        r + (top - r) * t
+    };
+    let big = rng.range(0.25, 0.38) * h;
+    let small = rng.range(0.004, 0.006);
+    let centre_x = r + 0.5 * big;
+    // Each end where the arc's axis reaches the wall's outer quarter (bisection on the
+    // angle; the axis moves inwards from u = pi/2 to pi).
+    let end = |sign: f64| {
+        let inside = |u: f64| {
+            let (x, y) = (centre_x + big * u.cos(), sign * big * u.sin());
+            x < outer(y) - 0.25 * wall
+        };
+        let (mut lo, mut hi) = (std::f64::consts::FRAC_PI_2, std::f64::consts::PI);
+        for _ in 0..60 {
+            let mid = 0.5 * (lo + hi);
+            if inside(mid) {
+                hi = mid;
+            } else {
+                lo = mid;
+            }
+        }
+        sign * hi
+    };
+    let handle = arc_tube(centre_x, big, small, end(-1.0), end(1.0), 24, 10);
     centred(&merged(&[body, handle]))
 }
 
@@ -301,6 +344,17 @@ mod tests {
             let c = instance(category, &mut Rng::new(8)).unwrap();
             assert_ne!(a, c, "{category} varies with the seed");
             assert!(is_watertight(&a), "{category} is watertight");
+            // Outward faces: the enclosed volume is positive.
+            let p = a.points();
+            let volume: f64 = a
+                .triangles()
+                .iter()
+                .map(|t| {
+                    let [x, y, z] = t.map(|v| p[v as usize]);
+                    x.dot(y.cross(z)) / 6.0
+                })
+                .sum();
+            assert!(volume > 0.0, "{category}: volume {volume}");
             let (lo, hi) = a.bounds();
             let size = (0..3).map(|k| hi[k] - lo[k]).fold(0.0f32, f32::max);
             assert!((0.05..0.4).contains(&size), "{category}: {size} m");
