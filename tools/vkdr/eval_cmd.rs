@@ -515,14 +515,14 @@ pub fn eval(
     Ok((rows, failures))
 }
 
-/// One category: its shape space from train/, then every test instance.
-fn evaluate_category(
+/// The shape space of the category folder `dir` from its canonical.obj and train/, with
+/// the settings' dimensions and CPD.
+pub fn category_space(
     ctx: &Context,
-    registrar: &Registrar,
     dir: &Path,
     category: &str,
     settings: &EvalSettings,
-) -> Result<Vec<Row>> {
+) -> Result<ShapeSpace> {
     let canonical = Mesh::load_obj(dir.join("canonical.obj"))?;
     let training: Vec<(String, Vec<DVec3>)> = obj_files(&dir.join("train"))?
         .iter()
@@ -532,7 +532,7 @@ fn evaluate_category(
         "{category}: shape space from {} training instances",
         training.len()
     );
-    let space = ShapeSpace::build(
+    Ok(ShapeSpace::build(
         ctx,
         category,
         &canonical,
@@ -540,7 +540,18 @@ fn evaluate_category(
         settings.dims,
         &settings.cpd,
         |_, _, _| {},
-    )?;
+    )?)
+}
+
+/// One category: its shape space from train/, then every test instance.
+fn evaluate_category(
+    ctx: &Context,
+    registrar: &Registrar,
+    dir: &Path,
+    category: &str,
+    settings: &EvalSettings,
+) -> Result<Vec<Row>> {
+    let space = category_space(ctx, dir, category, settings)?;
     let mut rows = Vec::new();
     for test in obj_files(&dir.join("test"))? {
         let name = test

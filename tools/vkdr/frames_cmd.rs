@@ -4,7 +4,7 @@
 //! occluder, depth noise and holes) so that the whole path can be tried without one.
 
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::{bail, Context as _, Result};
 use glam::DVec3;
@@ -138,24 +138,7 @@ pub fn run(args: &Args) -> Result<()> {
             .unwrap_or_default()
             .to_string_lossy()
             .into_owned();
-        let canonical = Mesh::load_obj(dir.join("canonical.obj"))?;
-        let training: Vec<(String, Vec<DVec3>)> = obj_files(&dir.join("train"))?
-            .iter()
-            .map(|f| Ok((f.display().to_string(), Mesh::load_obj(f)?.points())))
-            .collect::<Result<_>>()?;
-        eprintln!(
-            "{name}: shape space from {} training instances",
-            training.len()
-        );
-        let space = ShapeSpace::build(
-            &ctx,
-            &name,
-            &canonical,
-            &training,
-            base.dims,
-            &base.cpd,
-            |_, _, _| {},
-        )?;
+        let space = crate::eval_cmd::category_space(&ctx, dir, &name, &base)?;
         spaces.push((name, space, checked.info.up));
     }
 
@@ -371,7 +354,11 @@ pub fn generate(args: &GenArgs) -> Result<()> {
             map.insert(
                 obj_id.to_string(),
                 serde_json::json!({
-                    "category": pathdiff(dir, &args.out),
+                    // Absolute, so that the frames can be moved without their dataset.
+                    "category": std::fs::canonicalize(dir)
+                        .with_context(|| format!("resolving {}", dir.display()))?
+                        .display()
+                        .to_string(),
                     "model": format!("models/{model_name}"),
                     "model_to_category": {
                         "translation": to_category.translation.to_array(),
@@ -412,13 +399,4 @@ pub fn generate(args: &GenArgs) -> Result<()> {
         args.out.join("map.json").display()
     );
     Ok(())
-}
-
-/// `path` relative to `base` where it lies under the same folder as written, else absolute.
-fn pathdiff(path: &Path, base: &Path) -> String {
-    let absolute = |p: &Path| std::fs::canonicalize(p).unwrap_or_else(|_| p.to_path_buf());
-    absolute(path)
-        .display()
-        .to_string()
-        .replace(&format!("{}/", absolute(base).display()), "")
 }
