@@ -1,4 +1,5 @@
-//! Triangle meshes on the host: validated construction, OBJ in and out, generators.
+//! Triangle meshes on the host: validated construction, OBJ in and out, PLY in (BOP's
+//! object models), generators.
 //!
 //! Vertices keep the order of the OBJ file's `v` lines and triangles the order of its
 //! `f` lines, so triangle ids and per-vertex outputs line up with the file. Polygons with
@@ -10,6 +11,8 @@ use std::path::Path;
 use glam::DVec3;
 
 use crate::error::{Error, Result};
+
+mod ply;
 
 /// The mean of `points` (zero for none).
 pub fn centroid(points: &[DVec3]) -> DVec3 {
@@ -139,6 +142,27 @@ impl Mesh {
             }
         }
         (lo, hi)
+    }
+
+    /// Reads a PLY file (ASCII or binary little-endian; positions and faces, other
+    /// properties are ignored), as BOP ships its object models.
+    pub fn load_ply(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref();
+        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        let at = |e: Error| match e {
+            Error::InvalidInput(message) => Error::format(path, message),
+            other => other,
+        };
+        ply::parse(&bytes).map_err(at)
+    }
+
+    /// Reads a mesh by its extension: `.ply` as PLY, anything else as OBJ.
+    pub fn load(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref();
+        match path.extension() {
+            Some(e) if e.eq_ignore_ascii_case("ply") => Self::load_ply(path),
+            _ => Self::load_obj(path),
+        }
     }
 
     /// Reads a Wavefront OBJ file (positions and faces; other statements are ignored).

@@ -265,3 +265,136 @@ fn shape_space_file() -> PathBuf {
     })
     .clone()
 }
+
+/// A PLY of two triangles and a quad over five vertices, with normals and colours besides
+/// the positions and an element after the faces, as BOP's models have: its header (format
+/// line given) and body.
+fn ply_header(format: &str) -> String {
+    format!(
+        "ply\nformat {format} 1.0\ncomment made by the tests\nelement vertex 5\n\
+         property float x\nproperty float y\nproperty float z\n\
+         property float nx\nproperty float ny\nproperty float nz\n\
+         property uchar red\nproperty uchar green\nproperty uchar blue\n\
+         element face 3\nproperty list uchar int vertex_indices\n\
+         element edge 1\nproperty int vertex1\nproperty int vertex2\nend_header\n"
+    )
+}
+
+const PLY_POSITIONS: [[f32; 3]; 5] = [
+    [0.0, 0.0, 0.0],
+    [10.0, 0.0, 0.0],
+    [0.0, 10.0, 0.0],
+    [0.0, 0.0, 10.5],
+    [-3.25, 2.0, 1.0],
+];
+const PLY_FACES: [&[u32]; 3] = [&[0, 2, 1], &[0, 1, 3], &[1, 2, 3, 4]];
+
+fn ply_ascii() -> Vec<u8> {
+    let mut text = ply_header("ascii");
+    for p in PLY_POSITIONS {
+        text += &format!("{} {} {} 0 0 1 255 128 0\n", p[0], p[1], p[2]);
+    }
+    for f in PLY_FACES {
+        text += &format!(
+            "{} {}\n",
+            f.len(),
+            f.iter()
+                .map(|i| i.to_string())
+                .collect::<Vec<_>>()
+                .join(" ")
+        );
+    }
+    text += "0 1\n";
+    text.into_bytes()
+}
+
+fn ply_binary() -> Vec<u8> {
+    let mut bytes = ply_header("binary_little_endian").into_bytes();
+    for p in PLY_POSITIONS {
+        for c in p.iter().chain(&[0.0, 0.0, 1.0]) {
+            bytes.extend(c.to_le_bytes());
+        }
+        bytes.extend([255u8, 128, 0]);
+    }
+    for f in PLY_FACES {
+        bytes.push(f.len() as u8);
+        for i in f {
+            bytes.extend((*i as i32).to_le_bytes());
+        }
+    }
+    bytes.extend(0i32.to_le_bytes());
+    bytes.extend(1i32.to_le_bytes());
+    bytes
+}
+
+#[test]
+fn ply_ascii_and_binary_read_the_same_mesh() {
+    let want = Mesh::new(
+        PLY_POSITIONS.to_vec(),
+        vec![[0, 2, 1], [0, 1, 3], [1, 2, 3], [1, 3, 4]],
+    )
+    .unwrap();
+    for (name, bytes) in [("ascii.ply", ply_ascii()), ("binary.ply", ply_binary())] {
+        let path = scratch(name);
+        std::fs::write(&path, bytes).unwrap();
+        assert_eq!(Mesh::load_ply(&path).unwrap(), want, "{name}");
+        assert_eq!(Mesh::load(&path).unwrap(), want, "{name} by its extension");
+    }
+}
+
+#[test]
+fn bad_ply_is_an_error_naming_the_problem() {
+    let binary = ply_binary();
+    let cases: Vec<(&str, Vec<u8>, &str)> = vec![
+        (
+            "endian.ply",
+            String::from_utf8(ply_ascii()).unwrap().replace("format ascii", "format binary_big_endian").into_bytes(),
+            "format 'binary_big_endian' is not read",
+        ),
+        ("cut.ply", binary[..binary.len() - 30].to_vec(), "the data end before the header's counts"),
+        (
+            "points.ply",
+            b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n0 0 0\n".to_vec(),
+            "no face element",
+        ),
+        (
+            "range.ply",
+            String::from_utf8(ply_ascii()).unwrap().replace("4 1 2 3 4", "4 1 2 3 9").into_bytes(),
+            "refers to a vertex out of range",
+        ),
+        ("text.ply", b"solid cube\nfacet normal 0 0 1\n".to_vec(), "no 'end_header'"),
+        (
+            "nan.ply",
+            String::from_utf8(ply_ascii()).unwrap().replace("10.5", "nan").into_bytes(),
+            "not finite",
+        ),
+    ];
+    for (name, bytes, says) in cases {
+        let path = scratch(name);
+        std::fs::write(&path, bytes).unwrap();
+        let err = Mesh::load_ply(&path).unwrap_err().to_string();
+        assert!(err.contains(says) && err.contains(name), "{name}: {err}");
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(200))]
+
+    /// Any bytes after a valid header, or any header, are a mesh or an error: never a
+    /// panic, never an allocation the file does not back.
+    #[test]
+    fn ply_from_any_bytes_is_a_mesh_or_an_error(
+        body in proptest::collection::vec(any::<u8>(), 0..400),
+        cut in 0usize..600,
+    ) {
+        let mut bytes = ply_header("binary_little_endian").into_bytes();
+        bytes.extend(&body);
+        let path = scratch("any.ply");
+        std::fs::write(&path, &bytes).unwrap();
+        let _ = Mesh::load_ply(&path);
+        let mut ascii = ply_ascii();
+        ascii.truncate(cut.min(ascii.len()));
+        std::fs::write(&path, &ascii).unwrap();
+        let _ = Mesh::load_ply(&path);
+    }
+}

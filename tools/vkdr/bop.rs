@@ -257,7 +257,7 @@ fn check_depth_units(depth: &[f32], depth_scale: f64, path: &Path) -> Result<()>
 }
 
 /// What `eval-frames` needs of one BOP object: the category it is an instance of (a
-/// category folder: canonical.obj, train/), its model (an OBJ in millimetres, in the
+/// category folder: canonical.obj, train/), its model (a PLY or OBJ in millimetres, in the
 /// model's frame) and the rigid transform from the model's frame to the category's.
 #[derive(Clone, Debug)]
 pub struct ObjectCategory {
@@ -384,4 +384,29 @@ pub fn write_frame(dir: &Path, frame: &Frame, depth_scale: f64) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// Writes `mesh` as a binary little-endian PLY (float x, y, z; faces as uchar-counted int
+/// lists), as BOP ships its models.
+pub fn write_ply(path: &Path, mesh: &vkdr::Mesh) -> Result<()> {
+    let mut bytes = format!(
+        "ply\nformat binary_little_endian 1.0\ncomment written by vkdr gen-frames\n\
+         element vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
+         element face {}\nproperty list uchar int vertex_indices\nend_header\n",
+        mesh.vertex_count(),
+        mesh.triangle_count()
+    )
+    .into_bytes();
+    for p in mesh.positions() {
+        for c in p {
+            bytes.extend(c.to_le_bytes());
+        }
+    }
+    for t in mesh.triangles() {
+        bytes.push(3);
+        for v in t {
+            bytes.extend((*v as i32).to_le_bytes());
+        }
+    }
+    Ok(vkdr::io::write_atomically(path, &bytes)?)
 }

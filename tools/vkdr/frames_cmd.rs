@@ -25,8 +25,8 @@ pub struct Args {
     /// A BOP scene folder (scene_camera.json, scene_gt.json, depth/, mask_visib/, optionally
     /// mask/ and rgb/), or a folder of them.
     dir: PathBuf,
-    /// The map from BOP obj_id to category: {"OBJ_ID": {"category": DIR, "model": OBJ in
-    /// millimetres, "model_to_category": {"translation": [m], "rotation": [axis-angle]}}}.
+    /// The map from BOP obj_id to category: {"OBJ_ID": {"category": DIR, "model": PLY or
+    /// OBJ in millimetres, "model_to_category": {"translation": [m], "rotation": [axis-angle]}}}.
     #[arg(long)]
     categories: PathBuf,
     /// Pose-noise registrations per object (each from its own seeded noisy start).
@@ -189,9 +189,9 @@ pub fn run(args: &Args) -> Result<()> {
     Ok(())
 }
 
-/// The object's model (an OBJ in millimetres) in its category's frame (metres).
+/// The object's model (a PLY or OBJ in millimetres) in its category's frame (metres).
 fn model_in_category(entry: &ObjectCategory) -> Result<Mesh> {
-    let model = Mesh::load_obj(&entry.model)
+    let model = Mesh::load(&entry.model)
         .with_context(|| format!("the model of {}", entry.category.display()))?;
     let points: Vec<DVec3> = model
         .points()
@@ -269,7 +269,8 @@ fn category_to_model() -> Pose {
 }
 
 /// `vkdr gen-frames`: one BOP scene (OUT/000000) of rendered frames, the models
-/// (OUT/models, millimetres) and the map (OUT/map.json) for `vkdr eval-frames`.
+/// (OUT/models, binary PLY in millimetres, as BOP's) and the map (OUT/map.json) for `vkdr
+/// eval-frames`.
 pub fn generate(args: &GenArgs) -> Result<()> {
     if !(1..=100).contains(&args.frames) {
         bail!("--frames must be 1 to 100, not {}", args.frames);
@@ -348,8 +349,8 @@ pub fn generate(args: &GenArgs) -> Result<()> {
                     .map(|p| to_model.apply(*p) * 1e3)
                     .collect::<Vec<_>>(),
             )?;
-            let model_name = format!("obj_{obj_id:06}.obj");
-            model.save_obj(models_dir.join(&model_name))?;
+            let model_name = format!("obj_{obj_id:06}.ply");
+            bop::write_ply(&models_dir.join(&model_name), &model)?;
             let to_category = to_model.inverse();
             map.insert(
                 obj_id.to_string(),
