@@ -1,6 +1,6 @@
 //! A generated category dataset, so that everything can be tested and shown without
-//! downloads: bottles, open mugs (a wall, an inside bottom, a handle), spray bottles and
-//! drills (composite parts), each instance a watertight, welded mesh in one common frame
+//! downloads: bottles, open mugs (a wall, an inside bottom, a handle), spray bottles,
+//! drills (composite parts) and open bowls, each instance a watertight, welded mesh in one common frame
 //! per category (centred, metres, y up), reproducible from a seed. Layout: `DIR/<category>/canonical.obj`, `train/*.obj`,
 //! `test/*.obj`, `info.json`.
 
@@ -11,7 +11,7 @@ use glam::{DMat3, DVec3};
 use vkdr::error::{Error, Result};
 use vkdr::mesh::Mesh;
 
-pub const CATEGORIES: [&str; 4] = ["bottle", "mug", "spray_bottle", "drill"];
+pub const CATEGORIES: [&str; 5] = ["bottle", "mug", "spray_bottle", "drill", "bowl"];
 
 pub use vkdr::rng::Rng;
 
@@ -241,6 +241,29 @@ fn drill(rng: &mut Rng) -> Mesh {
     centred(&merged(&[body, chuck, handle, battery]))
 }
 
+/// An open bowl on a foot: its outside curves from the foot up to the rim, its inside
+/// follows a wall 4-6 mm thick down to a flat inside bottom.
+fn bowl(rng: &mut Rng) -> Mesh {
+    let h = rng.range(0.05, 0.08);
+    let rim = rng.range(0.06, 0.09);
+    let foot = rng.range(0.4, 0.5) * rim;
+    let foot_h = rng.range(0.006, 0.01);
+    let wall = rng.range(0.004, 0.006);
+    let bulge = rng.range(0.6, 0.9);
+    let outside = |t: f64| {
+        let r = foot + (rim - foot) * (t * std::f64::consts::FRAC_PI_2).sin().powf(bulge);
+        (r, foot_h + (h - foot_h) * t)
+    };
+    let steps = 8;
+    let mut profile = vec![(foot, 0.0)];
+    profile.extend((0..=steps).map(|k| outside(k as f64 / steps as f64)));
+    profile.extend((0..=steps).rev().map(|k| {
+        let (r, y) = outside(k as f64 / steps as f64);
+        (r - wall, y.max(foot_h + wall))
+    }));
+    lathe_centred(&profile, 32)
+}
+
 fn lathe_centred(profile: &[(f64, f64)], segments: u32) -> Mesh {
     let p: Vec<(f32, f32)> = profile.iter().map(|&(r, y)| (r as f32, y as f32)).collect();
     centred(&Mesh::lathe(&p, segments).expect("profiles are valid"))
@@ -264,6 +287,7 @@ pub fn instance(category: &str, rng: &mut Rng) -> Result<Mesh> {
         "mug" => mug(rng),
         "spray_bottle" => spray_bottle(rng),
         "drill" => drill(rng),
+        "bowl" => bowl(rng),
         other => {
             return Err(Error::InvalidInput(format!(
                 "unknown category '{other}' ({})",

@@ -1,4 +1,4 @@
-//! `vkdr gen-dataset`: generate the category dataset (bottle, mug, spray_bottle, drill) in
+//! `vkdr gen-dataset`: generate the category dataset (bottle, mug, spray_bottle, drill, bowl) in
 //! the design's layout.
 
 use std::path::PathBuf;

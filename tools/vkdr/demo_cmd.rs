@@ -37,7 +37,7 @@ pub fn run(args: &Args) -> Result<()> {
     let dataset = out.join("dataset");
     vkdr_app::dataset::generate(&dataset, 0, 10, 2, |_, _, _| {})?;
     println!(
-        "1. generated {} (bottle, mug, spray_bottle, drill: 10 training and 2 test meshes each)",
+        "1. generated {} (bottle, mug, spray_bottle, drill, bowl: 10 training and 2 test meshes each)",
         dataset.display()
     );
 

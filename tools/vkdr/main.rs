@@ -53,7 +53,7 @@ enum Command {
     BenchRegister(bench_register::Args),
     /// Non-rigid Coherent Point Drift of SOURCE onto TARGET (OBJ vertices or N x 3 .npy).
     Cpd(cpd_cmd::Args),
-    /// Generate the category dataset (bottle, mug, spray_bottle, drill) in the design's layout.
+    /// Generate the category dataset (bottle, mug, spray_bottle, drill, bowl) in the design's layout.
     GenDataset(dataset_cmd::Args),
     /// Check a category dataset (DIR with category folders, or one category folder) before
     /// a long run: sizes, units, up axis, open or unwelded meshes, frame; contact sheets.
