@@ -89,6 +89,25 @@ pub fn mark_unknown(image: &mut [f32], channels: usize, ignore: &[f32]) -> Resul
     Ok(())
 }
 
+/// The hidden pixels of an object: those `whole` (nonzero where the object is, seen or
+/// hidden, as BOP's `mask`) covers and the mask `visible` does not show as object; 1 where
+/// hidden. Marked [`UNKNOWN`] ([`mark_unknown`]) they count for nothing. An error if the
+/// sizes disagree.
+pub fn hidden_pixels(visible: &[f32], whole: &[f32]) -> Result<Vec<f32>> {
+    if visible.len() != whole.len() {
+        return Err(Error::InvalidInput(format!(
+            "a whole-object mask of {} pixels for a mask of {}",
+            whole.len(),
+            visible.len()
+        )));
+    }
+    Ok(visible
+        .iter()
+        .zip(whole)
+        .map(|(&v, &w)| (w != 0.0 && v <= 0.0) as u32 as f32)
+        .collect())
+}
+
 /// The pixels of one view that its depth shows in front of the object: outside the mask
 /// (`observed` channel 0 is 0), measured nearer than the nearest twentieth of the mask's
 /// measured depth by more than `tolerance` (metres). What hides part of the object, found

@@ -25,7 +25,7 @@ use vkdr::loss::Loss;
 use vkdr::mesh::{centroid, Mesh};
 use vkdr::raster::{Outputs, View};
 use vkdr::register::{
-    turned_starts, Gravity, Job, Optimizer, OtherView, RegisterParams, Registrar, Registration,
+    turned_starts, Gravity, Job, Optimizer, OtherView, RegisterParams, Registrar,
 };
 use vkdr::shape::ShapeSpace;
 
@@ -986,12 +986,6 @@ pub fn reverse_error(
     Ok(surface_error(&points, &test.points(), test.triangles()))
 }
 
-/// The loss a registration ended with, at the code and pose it returned (what
-/// [`Registrar::register_from_starts`] keeps the least of).
-pub fn final_loss(registration: &Registration) -> f64 {
-    registration.loss
-}
-
 /// `vertices` moved so that their centroid is that of `reference` (the same mesh's
 /// vertices). With the x and y translation unknown, one view cannot tell a shape shifted
 /// in its own frame from a shifted pose, and the error counts such a shift in full; the
@@ -1261,7 +1255,7 @@ pub fn evaluate_instance(
         if best_known.as_ref().is_none_or(|(e, _)| known_error < *e) {
             best_known = Some((known_error, result.code.clone()));
         }
-        let known_pose_loss = final_loss(&result);
+        let known_pose_loss = result.loss;
         let known_on_bound = result.on_bound;
         known_ch.push(chamfer(&test_vertices, &result.vertices));
         iterations.push(result.iterations as f64);
@@ -1317,7 +1311,7 @@ pub fn evaluate_instance(
             pose_noise_seen,
             pose_noise_seen_both_ways: both_ways(&seen, pose_noise_seen)?,
             known_pose_loss,
-            pose_noise_loss: final_loss(&result),
+            pose_noise_loss: result.loss,
             rotation_error,
             rotation_error_symmetric,
             translation_error,

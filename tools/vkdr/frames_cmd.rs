@@ -206,11 +206,7 @@ fn model_in_category(entry: &ObjectCategory) -> Result<Mesh> {
 fn frame_scene(frame: &Frame, object: &FrameObject, pose: Pose) -> Result<TrialScene> {
     let mut mask = object.visible.clone();
     if let Some(whole) = &object.whole {
-        let hidden: Vec<f32> = whole
-            .iter()
-            .zip(&object.visible)
-            .map(|(&w, &v)| (w > 0.0 && v == 0.0) as u32 as f32)
-            .collect();
+        let hidden = vkdr::loss::hidden_pixels(&object.visible, whole)?;
         vkdr::loss::mark_unknown(&mut mask, 1, &hidden)?;
     }
     Ok(TrialScene {

@@ -254,13 +254,9 @@ fn from_files(args: &Args, view: View, further: &[FurtherView]) -> Result<eval::
         };
         // Only pixels the mask does not show as object become unknown: BOP's whole `mask`
         // works as it is (the hidden part is it less mask_visib).
-        let ignore: Option<Vec<f32>> = ignore.map(|ignore| {
-            ignore
-                .iter()
-                .zip(&mask)
-                .map(|(&i, &m)| if m > 0.0 { 0.0 } else { i })
-                .collect()
-        });
+        let ignore = ignore
+            .map(|ignore| loss::hidden_pixels(&mask, &ignore))
+            .transpose()?;
         if let Some(ignore) = &ignore {
             loss::mark_unknown(&mut mask, 1, ignore)?;
         }
