@@ -162,6 +162,42 @@ impl RegisterParams {
     }
 }
 
+impl RegisterParams {
+    /// The schedule `vkdr register` and `vkdr eval` use with the pose known, for views of
+    /// `pixels` pixels: 30 BFGS iterations of the code, the prior those pixels imply
+    /// ([`observation_prior`]).
+    pub fn known_pose(pixels: usize) -> Self {
+        Self {
+            iterations: 30,
+            optimizer: Optimizer::Bfgs,
+            code_prior: observation_prior(pixels),
+            ..Self::default()
+        }
+    }
+
+    /// The schedule `vkdr register --optimize-pose` and `vkdr eval` use with the pose
+    /// free (chosen on a validation dataset, another seed than the reported one): the pose
+    /// aligned alone for 15 iterations with the distance loss, then 60 of pose and shape
+    /// together with BFGS. The z translation stays fixed: set `optimize_z` where depth or
+    /// a further view observes it.
+    pub fn free_pose(pixels: usize) -> Self {
+        Self {
+            iterations: 60,
+            pose_every: 1,
+            align: 15,
+            align_loss: Loss::Distance,
+            translation_step: 0.01,
+            rotation_step: 0.05,
+            ..Self::known_pose(pixels)
+        }
+    }
+}
+
+/// The turn between the starts of a registration with the pose free (`vkdr register`
+/// turns its starts about the up axis by multiples of it, [`turned_starts`]; `vkdr eval`
+/// by its rotation noise, the same 15 degrees by default).
+pub const START_TURN: f64 = 15f64.to_radians();
+
 impl Default for RegisterParams {
     fn default() -> Self {
         Self {

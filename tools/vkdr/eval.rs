@@ -24,9 +24,7 @@ use vkdr::gpu::Context;
 use vkdr::loss::Loss;
 use vkdr::mesh::{centroid, Mesh};
 use vkdr::raster::{Outputs, View};
-use vkdr::register::{
-    turned_starts, Gravity, Job, Optimizer, OtherView, RegisterParams, Registrar,
-};
+use vkdr::register::{turned_starts, Gravity, Job, OtherView, RegisterParams, Registrar};
 use vkdr::shape::ShapeSpace;
 
 /// Mean over `a` of the distance to the nearest point of `b`.
@@ -486,26 +484,9 @@ impl Default for EvalSettings {
             seed: 0,
             elevation: (10f64.to_radians(), 60f64.to_radians()),
             translation_noise: 0.05,
-            rotation_noise: 15f64.to_radians(),
-            known_pose: RegisterParams {
-                iterations: 30,
-                optimizer: Optimizer::Bfgs,
-                code_prior: vkdr::register::observation_prior(320 * 240),
-                ..RegisterParams::default()
-            },
-            // Chosen on a validation dataset (another seed): the pose alone aligned first
-            // with the distance loss, then pose and shape together.
-            pose_noise: RegisterParams {
-                iterations: 60,
-                pose_every: 1,
-                align: 15,
-                align_loss: Loss::Distance,
-                translation_step: 0.01,
-                rotation_step: 0.05,
-                optimizer: Optimizer::Bfgs,
-                code_prior: vkdr::register::observation_prior(320 * 240),
-                ..RegisterParams::default()
-            },
+            rotation_noise: vkdr::register::START_TURN,
+            known_pose: RegisterParams::known_pose(320 * 240),
+            pose_noise: RegisterParams::free_pose(320 * 240),
             dims: 5,
             from_truth: false,
             shading: None,

@@ -13,7 +13,7 @@ use vkdr::raster::View;
 use vkdr::register::{self, turned_starts, Gravity, Job, OtherView, RegisterParams, Registrar};
 use vkdr::shape::ShapeSpace;
 use vkdr::{Camera, Mesh, Pose};
-use vkdr_app::eval::{self, EvalSettings};
+use vkdr_app::eval;
 
 use crate::args::{parse_view, DepthLossArgs, ShadingArgs, ViewArgs};
 use crate::choices::{LossChoice, OptimizerChoice};
@@ -432,12 +432,12 @@ pub fn run(args: &Args) -> Result<()> {
         let n = (view.camera.width * view.camera.height) as usize;
         check_depth_units(&space, &view.camera, &observed.mask[..n], &depth[..n]);
     }
-    // With the pose: the schedule of `vkdr eval` (pose alone first, then both).
-    let settings = EvalSettings::default();
+    // The schedules of `vkdr eval` (with the pose: the pose alone first, then both).
+    let pixels = (view.camera.width * view.camera.height) as usize;
     let base = if args.optimize_pose {
-        settings.pose_noise
+        RegisterParams::free_pose(pixels)
     } else {
-        settings.known_pose
+        RegisterParams::known_pose(pixels)
     };
     let optimizer: Option<vkdr::register::Optimizer> = args.optimizer.map(Into::into);
     let observes_z = observed.depth.is_some() || !others.is_empty();
@@ -448,10 +448,7 @@ pub fn run(args: &Args) -> Result<()> {
         shading: args.shading.shading()?,
         depth: observed.depth.is_some().then_some(depth_loss),
         optimize_z: base.optimize_z || (args.optimize_pose && observes_z),
-        code_prior: crate::args::code_prior(
-            &args.code_prior,
-            (view.camera.width * view.camera.height) as usize,
-        )?,
+        code_prior: crate::args::code_prior(&args.code_prior, pixels)?,
         optimize_scale: args.optimize_scale,
         ..base
     };
@@ -467,7 +464,7 @@ pub fn run(args: &Args) -> Result<()> {
         ..Job::new(&space, &observed.mask, view)
     };
     let count = if args.optimize_pose { args.starts } else { 1 };
-    let starts = turned_starts(view.pose, up, count, settings.rotation_noise);
+    let starts = turned_starts(view.pose, up, count, register::START_TURN);
     let result = eval_cmd::register(&ctx, job, &starts, &params, &args.out)?;
     // With several starts, `iterations` counts every start's; the kept run's are its losses.
     let kept = result.losses.len().max(1);

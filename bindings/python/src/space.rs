@@ -1,0 +1,368 @@
+//! `vkdr.ShapeSpace`, `vkdr.Registration`, `vkdr.cpd` and `vkdr.load_mesh`.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use glam::DVec3;
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList};
+
+use vkdr::cpd::CpdParams;
+use vkdr::Mesh;
+
+use crate::arrays::{self, array, bad};
+use crate::device::{engine_of, Device};
+use crate::OrPy;
+
+/// Points from an (N, 3) float array.
+fn points(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<DVec3>> {
+    let values = arrays::floats(obj, name)?.expect(name, &[None, Some(3)], "(N, 3)")?;
+    if values.shape[0] == 0 {
+        return Err(bad(name, "no points"));
+    }
+    Ok(values
+        .data
+        .chunks_exact(3)
+        .map(|p| DVec3::new(p[0], p[1], p[2]))
+        .collect())
+}
+
+/// Points as an (N, 3) float64 array.
+fn point_array<'py>(py: Python<'py>, points: &[DVec3]) -> PyResult<Bound<'py, PyAny>> {
+    let data = points.iter().flat_map(|p| p.to_array()).collect();
+    Ok(array(py, data, &[points.len(), 3])?.into_any())
+}
+
+/// A mesh's faces as an (F, 3) uint32 array.
+fn face_array<'py>(py: Python<'py>, mesh: &Mesh) -> PyResult<Bound<'py, PyAny>> {
+    let data = mesh.triangles().iter().flatten().copied().collect();
+    Ok(array::<u32>(py, data, &[mesh.triangle_count(), 3])?.into_any())
+}
+
+/// CPD's parameters: the engine's defaults where a value is None.
+fn cpd_params(
+    beta: Option<f64>,
+    lam: Option<f64>,
+    w: Option<f64>,
+    max_iterations: Option<usize>,
+    tolerance: Option<f64>,
+) -> PyResult<CpdParams> {
+    let default = CpdParams::default();
+    let params = CpdParams {
+        beta: beta.unwrap_or(default.beta),
+        lambda: lam.unwrap_or(default.lambda),
+        w: w.unwrap_or(default.w),
+        max_iterations: max_iterations.unwrap_or(default.max_iterations),
+        tolerance: tolerance.unwrap_or(default.tolerance),
+        ..default
+    };
+    params
+        .validate()
+        .map_err(|e| bad("beta, lam, w, max_iterations or tolerance", e))?;
+    Ok(params)
+}
+
+/// Non-rigid Coherent Point Drift of `source` (M x 3) onto `target` (N x 3), the E-step
+/// and kernel products on the device. `beta` is the kernel width in units of the source's
+/// RMS radius, `lam` the smoothness weight, `w` the outlier weight (defaults: the
+/// engine's, as `vkdr cpd`). Returns `(deformed, W, log)`: the moved source points
+/// (M x 3, float64), the coefficients W (deformed = source + G W) and a dict (iterations,
+/// converged, stop, seconds, sigma2, ...).
+#[pyfunction]
+#[pyo3(signature = (source, target, beta=None, lam=None, w=None, max_iterations=None, tolerance=None, device=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn cpd<'py>(
+    py: Python<'py>,
+    source: &Bound<'py, PyAny>,
+    target: &Bound<'py, PyAny>,
+    beta: Option<f64>,
+    lam: Option<f64>,
+    w: Option<f64>,
+    max_iterations: Option<usize>,
+    tolerance: Option<f64>,
+    device: Option<&Bound<'py, Device>>,
+) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>, Bound<'py, PyDict>)> {
+    let params = cpd_params(beta, lam, w, max_iterations, tolerance)?;
+    let y = points(source, "source")?;
+    let x = points(target, "target")?;
+    let engine = engine_of(py, device)?;
+    let result = py.detach(|| {
+        engine.run(|ctx, parts| {
+            vkdr::cpd::register(ctx, parts.cpd(ctx)?, &y, &x, &params, &mut |_, _| {})
+        })
+    })?;
+    let log = PyDict::new(py);
+    log.set_item("iterations", result.iterations)?;
+    log.set_item("converged", result.stop.converged())?;
+    log.set_item("stop", format!("{:?}", result.stop))?;
+    log.set_item("seconds", result.seconds)?;
+    log.set_item("kernel_products", result.products)?;
+    log.set_item("jumps", result.jumps)?;
+    log.set_item("sigma2", result.sigma2.clone())?;
+    Ok((
+        point_array(py, &result.deformed)?,
+        point_array(py, &result.w)?,
+        log,
+    ))
+}
+
+/// Reads a mesh (OBJ, or PLY as BOP ships its models). Returns `(vertices, faces)`:
+/// (V, 3) float32 in the file's order and (F, 3) uint32.
+#[pyfunction]
+pub fn load_mesh(py: Python<'_>, path: PathBuf) -> PyResult<(Bound<'_, PyAny>, Bound<'_, PyAny>)> {
+    let mesh = py.detach(|| Mesh::load(&path)).py()?;
+    let data = mesh.positions().iter().flatten().copied().collect();
+    let vertices = array::<f32>(py, data, &[mesh.vertex_count(), 3])?;
+    Ok((vertices.into_any(), face_array(py, &mesh)?))
+}
+
+/// A category's latent shape space: a canonical mesh, its training instances registered
+/// to it by CPD, and the PCA of the deformation fields. `vertices(code)` is the canonical
+/// deformed by a code.
+#[pyclass(module = "vkdr", frozen)]
+pub struct ShapeSpace {
+    pub inner: Arc<vkdr::shape::ShapeSpace>,
+}
+
+#[pymethods]
+impl ShapeSpace {
+    /// Builds a space from the canonical mesh (`vertices` V x 3, `faces` F x 3) and the
+    /// training `instances` (a list of N_i x 3 point arrays, e.g. their vertices), with at
+    /// most `dims` dimensions (never more than instances - 1). The CPD parameters are
+    /// `vkdr.cpd`'s.
+    #[staticmethod]
+    #[pyo3(signature = (vertices, faces, instances, dims=5, category="object", names=None, beta=None, lam=None, w=None, device=None))]
+    #[allow(clippy::too_many_arguments)]
+    fn build(
+        py: Python<'_>,
+        vertices: &Bound<'_, PyAny>,
+        faces: &Bound<'_, PyAny>,
+        instances: &Bound<'_, PyList>,
+        dims: usize,
+        category: &str,
+        names: Option<Vec<String>>,
+        beta: Option<f64>,
+        lam: Option<f64>,
+        w: Option<f64>,
+        device: Option<&Bound<'_, Device>>,
+    ) -> PyResult<Self> {
+        if dims == 0 {
+            return Err(bad("dims", "must be at least 1"));
+        }
+        let params = cpd_params(beta, lam, w, None, None)?;
+        let canonical = crate::mesh(vertices, faces)?;
+        let names = names.unwrap_or_else(|| {
+            (0..instances.len())
+                .map(|k| format!("instance{k}"))
+                .collect()
+        });
+        if names.len() != instances.len() {
+            return Err(bad(
+                "names",
+                format!("{} names for {} instances", names.len(), instances.len()),
+            ));
+        }
+        let training = instances
+            .iter()
+            .enumerate()
+            .zip(names)
+            .map(|((k, obj), name)| Ok((name, points(&obj, &format!("instances[{k}]"))?)))
+            .collect::<PyResult<Vec<_>>>()?;
+        let engine = engine_of(py, device)?;
+        let space = py.detach(|| {
+            engine.run(|ctx, _| {
+                vkdr::shape::ShapeSpace::build(
+                    ctx,
+                    category,
+                    &canonical,
+                    &training,
+                    dims,
+                    &params,
+                    |_, _, _| {},
+                )
+            })
+        })?;
+        Ok(Self {
+            inner: Arc::new(space),
+        })
+    }
+
+    /// Reads a space that `save` or `vkdr shape-space` wrote (.npz).
+    #[staticmethod]
+    fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
+        let space = py.detach(|| vkdr::shape::ShapeSpace::load(&path)).py()?;
+        Ok(Self {
+            inner: Arc::new(space),
+        })
+    }
+
+    /// Writes the space (.npz), as `vkdr shape-space` does.
+    fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        py.detach(|| self.inner.save(&path)).py()
+    }
+
+    /// The canonical mesh deformed by `code` (dims,): its vertices (V x 3, float64).
+    fn vertices<'py>(
+        &self,
+        py: Python<'py>,
+        code: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let code = arrays::floats(code, "code")?.expect(
+            "code",
+            &[Some(self.inner.dims())],
+            &format!("({},)", self.inner.dims()),
+        )?;
+        point_array(py, &self.inner.vertices(&code.data).py()?)
+    }
+
+    /// `code` in training standard deviations (each dimension over its spread in the
+    /// training set).
+    fn code_in_deviations<'py>(
+        &self,
+        py: Python<'py>,
+        code: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let dims = self.inner.dims();
+        let code =
+            arrays::floats(code, "code")?.expect("code", &[Some(dims)], &format!("({dims},)"))?;
+        Ok(array(py, self.inner.code_in_deviations(&code.data), &[dims])?.into_any())
+    }
+
+    /// Latent dimensions.
+    #[getter]
+    fn dims(&self) -> usize {
+        self.inner.dims()
+    }
+
+    /// The category's name.
+    #[getter]
+    fn category(&self) -> String {
+        self.inner.category.clone()
+    }
+
+    /// The canonical mesh's vertices (V x 3, float32).
+    #[getter]
+    fn canonical<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let mesh = &self.inner.canonical;
+        let data = mesh.positions().iter().flatten().copied().collect();
+        Ok(array::<f32>(py, data, &[mesh.vertex_count(), 3])?.into_any())
+    }
+
+    /// The canonical mesh's faces (F x 3, uint32).
+    #[getter]
+    fn faces<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        face_array(py, &self.inner.canonical)
+    }
+
+    /// The training instances' codes (T x dims).
+    #[getter]
+    fn training_codes<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let codes = &self.inner.training_codes;
+        let data = codes.iter().flatten().copied().collect();
+        Ok(array::<f64>(py, data, &[codes.len(), self.inner.dims()])?.into_any())
+    }
+
+    /// The training instances' names.
+    #[getter]
+    fn training_names(&self) -> Vec<String> {
+        self.inner.training_names.clone()
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "vkdr.ShapeSpace('{}', {} dims, {} vertices, {} training instances)",
+            self.inner.category,
+            self.inner.dims(),
+            self.inner.canonical.vertex_count(),
+            self.inner.training_codes.len()
+        )
+    }
+}
+
+/// What a registration found: `code` (dims,) and `code_sd` (in training standard
+/// deviations), `pose` (6,), `vertices` (V x 3, the deformed canonical times `scale`, object
+/// frame) and `faces`, `losses` before each iteration, `loss` (the objective at the
+/// result), `iterations`, `milliseconds`, `scale`.
+#[pyclass(module = "vkdr", frozen)]
+pub struct Registration {
+    result: vkdr::register::Registration,
+    code_sd: Vec<f64>,
+    space: Arc<vkdr::shape::ShapeSpace>,
+}
+
+impl Registration {
+    pub fn new(space: &Arc<vkdr::shape::ShapeSpace>, result: vkdr::register::Registration) -> Self {
+        Self {
+            code_sd: space.code_in_deviations(&result.code),
+            result,
+            space: space.clone(),
+        }
+    }
+}
+
+#[pymethods]
+impl Registration {
+    #[getter]
+    fn code<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        Ok(array(py, self.result.code.clone(), &[self.result.code.len()])?.into_any())
+    }
+
+    #[getter]
+    fn code_sd<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        Ok(array(py, self.code_sd.clone(), &[self.code_sd.len()])?.into_any())
+    }
+
+    #[getter]
+    fn pose<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        Ok(array(py, crate::pose_numbers(&self.result.pose), &[6])?.into_any())
+    }
+
+    #[getter]
+    fn vertices<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        point_array(py, &self.result.vertices)
+    }
+
+    #[getter]
+    fn faces<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        face_array(py, &self.space.canonical)
+    }
+
+    #[getter]
+    fn losses<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        Ok(array(py, self.result.losses.clone(), &[self.result.losses.len()])?.into_any())
+    }
+
+    #[getter]
+    fn loss(&self) -> f64 {
+        self.result.loss
+    }
+
+    #[getter]
+    fn iterations(&self) -> usize {
+        self.result.iterations
+    }
+
+    #[getter]
+    fn milliseconds(&self) -> f64 {
+        self.result.milliseconds
+    }
+
+    #[getter]
+    fn scale(&self) -> f64 {
+        self.result.scale
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "vkdr.Registration(loss {:.5}, {} iterations, {:.1} ms, code in SD {:?}, scale {:.4})",
+            self.result.loss,
+            self.result.iterations,
+            self.result.milliseconds,
+            self.code_sd
+                .iter()
+                .map(|c| (c * 100.0).round() / 100.0)
+                .collect::<Vec<_>>(),
+            self.result.scale
+        )
+    }
+}
