@@ -1,13 +1,13 @@
 //! The Python module `vkdr` (this crate is its compiled part, `vkdr._vkdr`): the engine's
 //! rasterizer, exact loss gradients, CPD, shape spaces and registration, with NumPy arrays
 //! in and out. `python/vkdr/__init__.py` re-exports it; `python/vkdr/torch.py` wraps
-//! [`Device::loss_and_grad`] as a PyTorch autograd function.
+//! `Device.loss_and_grad` as a PyTorch autograd function.
 //!
 //! Conventions, as the command line's: a pose is 6 numbers, the translation in metres and
 //! an axis-angle rotation in radians, object to camera (x right, y down, z forward); `K` is
 //! a pinhole intrinsics matrix (3 x 3, or fx, fy, cx, cy) in pixels; `size` is (width,
 //! height); images are `(height, width)` arrays. The device's work runs with the GIL
-//! released, one call at a time per [`Device`].
+//! released, one call at a time per `Device`.
 
 use pyo3::exceptions::{PyOSError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
