@@ -164,6 +164,13 @@ pub fn floats(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Values<f64>> {
     Ok(values)
 }
 
+/// A float32 or float64 argument as f32 (the device's precision), every value finite.
+pub fn floats32(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Values<f32>> {
+    let values = read(obj, name, Kind::Float, |v, _| v as f32)?;
+    finite(&values.data, name)?;
+    Ok(values)
+}
+
 /// An image argument (a mask, depth, shading: floats, integers or bool) as f32, every value
 /// finite, of shape `(H, W)` or, with `views`, `(views, H, W)` (a single view may drop the
 /// first axis).
@@ -194,9 +201,9 @@ pub fn image(
     Ok(values.data)
 }
 
-/// An integer argument.
-pub fn integers(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Values<Option<i64>>> {
-    read(obj, name, Kind::Integer, |_, i| i)
+/// An integer argument (a value past `i64::MAX` reads as -1: no index is that large).
+pub fn integers(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Values<i64>> {
+    read(obj, name, Kind::Integer, |_, i| i.unwrap_or(-1))
 }
 
 /// An error naming `name` at its first value that is NaN or infinite.

@@ -46,13 +46,10 @@ impl<T> OrPy<T> for vkdr::Result<T> {
 /// A mesh from `vertices` (V x 3, float) and `faces` (F x 3, integer indices into the
 /// vertices).
 fn mesh(vertices: &Bound<'_, PyAny>, faces: &Bound<'_, PyAny>) -> PyResult<Mesh> {
-    let v = arrays::floats(vertices, "vertices")?.expect("vertices", &[None, Some(3)], "(V, 3)")?;
+    let v =
+        arrays::floats32(vertices, "vertices")?.expect("vertices", &[None, Some(3)], "(V, 3)")?;
     let count = v.shape[0];
-    let positions: Vec<[f32; 3]> = v
-        .data
-        .chunks_exact(3)
-        .map(|p| [p[0] as f32, p[1] as f32, p[2] as f32])
-        .collect();
+    let positions: Vec<[f32; 3]> = v.data.chunks_exact(3).map(|p| [p[0], p[1], p[2]]).collect();
     let triangles = triangles(faces, count)?;
     Mesh::new(positions, triangles).py()
 }
@@ -63,25 +60,24 @@ fn triangles(faces: &Bound<'_, PyAny>, count: usize) -> PyResult<Vec<[u32; 3]>> 
     if f.shape[0] == 0 {
         return Err(bad("faces", "no triangles"));
     }
-    let mut out = Vec::with_capacity(f.shape[0]);
-    for (t, corners) in f.data.chunks_exact(3).enumerate() {
-        let mut triangle = [0u32; 3];
-        for (c, &index) in corners.iter().enumerate() {
-            triangle[c] = index
-                .filter(|&i| i >= 0 && (i as u64) < count as u64)
-                .ok_or_else(|| {
-                    bad(
-                        "faces",
-                        format!(
-                            "face {t} has index {} outside the {count} vertices",
-                            index.map_or("past 2^63".to_string(), |i| i.to_string())
-                        ),
-                    )
-                })? as u32;
-        }
-        out.push(triangle);
+    let outside = f.data.iter().position(|&i| !(0..count as i64).contains(&i));
+    if let Some(k) = outside {
+        return Err(bad(
+            "faces",
+            format!(
+                "face {} has index {} outside the {count} vertices",
+                k / 3,
+                match f.data[k] {
+                    -1 => "-1 (or one past 2^63)".to_string(),
+                    i => i.to_string(),
+                }
+            ),
+        ));
     }
-    Ok(out)
+    Ok(f.data
+        .chunks_exact(3)
+        .map(|t| [t[0] as u32, t[1] as u32, t[2] as u32])
+        .collect())
 }
 
 /// The camera of intrinsics `k` (3 x 3 without skew, or fx, fy, cx, cy) and `size`
