@@ -551,7 +551,7 @@ pub fn noisy_pose(pose: Pose, rng: &mut Rng, translation: f64, rotation: f64) ->
 }
 
 /// Mean and (sample) standard deviation.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct Stat {
     pub mean: f64,
     pub std: f64,
@@ -570,7 +570,7 @@ impl Stat {
 }
 
 /// One row of the table.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Row {
     pub category: String,
     pub instance: String,
@@ -611,7 +611,7 @@ pub struct Row {
 }
 
 /// One trial of a test instance: the view, the errors and the pose error with pose noise.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Trial {
     /// The view, radians.
     pub azimuth: f64,

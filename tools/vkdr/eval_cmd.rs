@@ -19,12 +19,13 @@ use vkdr_app::plot::{Plot, PALETTE};
 use crate::args::{DepthLossArgs, ShadingArgs};
 use crate::choices::{LossChoice, OptimizerChoice};
 use crate::shape_cmd::obj_files;
+use crate::shard;
 
 #[derive(clap::Args)]
 pub struct Args {
     /// A dataset in the layout of `vkdr gen-dataset`.
-    #[arg(long)]
-    dataset: PathBuf,
+    #[arg(long, required_unless_present = "merge")]
+    dataset: Option<PathBuf>,
     #[arg(long, default_value_t = 10)]
     trials: usize,
     #[arg(long, default_value_t = 0)]
@@ -141,12 +142,65 @@ pub struct Args {
     /// Run even where `check-dataset` finds the set unusable (millimetres, no meshes, ...).
     #[arg(long)]
     skip_checks: bool,
+    /// Evaluate shard K of N only (K from 0 to N-1, as $SLURM_ARRAY_TASK_ID), one test
+    /// instance a unit, balanced by expected cost; writes OUT/shard.json for --merge.
     #[arg(long)]
-    pub out: PathBuf,
+    shard: Option<String>,
+    /// A folder of shape spaces (CATEGORY.npz): each category's is read from it where it
+    /// is there and built and saved there where not, so the shards of a run build each once.
+    #[arg(long)]
+    spaces: Option<PathBuf>,
+    /// Merge the shards of a run: OUT, then the shards' --out folders. Writes the tables
+    /// one process would write into OUT; the run's flags come from the shards.
+    #[arg(long, num_args = 2.., value_names = ["OUT", "SHARD_DIR"], conflicts_with_all = ["dataset", "out", "shard", "spaces"])]
+    merge: Option<Vec<PathBuf>>,
+    #[arg(long, required_unless_present = "merge")]
+    out: Option<PathBuf>,
 }
 
-/// `vkdr eval`: the default settings with the flags' changes.
+impl Args {
+    /// The output folder (--out, or the first folder of --merge).
+    pub fn out(&self) -> &Path {
+        match (&self.merge, &self.out) {
+            (Some(merge), _) => &merge[0],
+            (None, Some(out)) => out,
+            (None, None) => unreachable!("clap requires --out or --merge"),
+        }
+    }
+}
+
+/// `eval`'s flags alone, to read a merged run's flags back.
+#[derive(clap::Parser)]
+#[command(name = "eval")]
+struct Flags {
+    #[command(flatten)]
+    args: Args,
+}
+
+/// `vkdr eval`: the default settings with the flags' changes; a shard of them, or the
+/// merge of shards.
 pub fn run(args: &Args) -> Result<()> {
+    if let Some(merge) = &args.merge {
+        return merge_shards(&merge[0], &merge[1..]);
+    }
+    let settings = settings(args)?;
+    let shard = args.shard.as_deref().map(shard::Shard::parse).transpose()?;
+    let plan = Plan {
+        shard,
+        spaces: args.spaces.as_deref(),
+    };
+    evaluate(
+        args.dataset.as_deref().expect("clap requires --dataset"),
+        settings,
+        args.categories.as_deref(),
+        args.skip_checks,
+        &plan,
+        args.out(),
+    )
+}
+
+/// The evaluation's settings: the defaults with the flags' changes, each checked.
+fn settings(args: &Args) -> Result<EvalSettings> {
     if args.dims == 0 {
         bail!("--dims must be at least 1");
     }
@@ -238,42 +292,102 @@ pub fn run(args: &Args) -> Result<()> {
         params.loss = loss.unwrap_or(params.loss);
         params.validate()?;
     }
-    evaluate(
-        &args.dataset,
-        settings,
-        args.categories.as_deref(),
-        args.skip_checks,
-        &args.out,
-    )
+    Ok(settings)
 }
 
-/// Evaluates the dataset with `settings`, prints the table and writes the reports into
-/// `out`; an error when any category failed.
+/// Merges the shards in `dirs` into the tables in `out` (an error when a category failed
+/// in a shard, after writing the others' rows).
+fn merge_shards(out: &Path, dirs: &[PathBuf]) -> Result<()> {
+    let merged = shard::merge(dirs)?;
+    let flags = <Flags as clap::Parser>::try_parse_from(
+        std::iter::once("eval".to_string())
+            .chain(merged.run.iter().cloned())
+            .chain(["--out".to_string(), out.display().to_string()]),
+    )
+    .context("the shards' flags")?;
+    let settings = settings(&flags.args)?;
+    if !merged.rows.is_empty() {
+        write_reports(out, &merged.rows, &settings, &merged.device)?;
+        print!("{}", std::fs::read_to_string(out.join("table.md"))?);
+        println!(
+            "merged {} shards: wrote {1}/table.md, table.csv, table.json, trials.csv, speed_vs_error.png",
+            dirs.len(),
+            out.display()
+        );
+    }
+    if !merged.failures.is_empty() {
+        bail!(
+            "{} categories failed in the shards:\n  {}",
+            merged.failures.len(),
+            merged.failures.join("\n  ")
+        );
+    }
+    Ok(())
+}
+
+/// What of the dataset one process evaluates, and where the shape spaces are kept.
+struct Plan<'a> {
+    /// Only this shard's test instances (all without).
+    shard: Option<shard::Shard>,
+    /// Shape spaces read from here where present, saved here where built.
+    spaces: Option<&'a Path>,
+}
+
+/// Evaluates the dataset with `settings`: prints the table and writes the reports into
+/// `out`, or with a shard writes its rows (`shard.json`) for the merge; an error when any
+/// category failed.
 fn evaluate(
     dataset: &Path,
-    settings: vkdr_app::eval::EvalSettings,
+    settings: EvalSettings,
     categories: Option<&str>,
     skip_checks: bool,
+    plan: &Plan,
     out: &Path,
 ) -> Result<()> {
     let ctx = Context::new()?;
     let device = format!("{} ({})", ctx.info().name, ctx.info().driver_info);
     let only: Option<Vec<String>> =
         categories.map(|c| c.split(',').map(|s| s.trim().to_string()).collect());
+    let mut file = None;
     let (rows, failures) = eval(
         &ctx,
         dataset,
         &settings,
         only.as_deref(),
         skip_checks,
-        |rows| write_reports(out, rows, &settings, &device),
+        plan,
+        |units, placed, failures| match plan.shard {
+            None => {
+                let rows: Vec<Row> = placed.iter().map(|p| p.row.clone()).collect();
+                write_reports(out, &rows, &settings, &device)
+            }
+            Some(shard) => {
+                let file = file.get_or_insert_with(|| {
+                    shard::ShardFile::new(shard::run_flags(), shard, device.clone(), units.to_vec())
+                });
+                file.rows = placed.to_vec();
+                file.failures = failures.to_vec();
+                file.write(out)
+            }
+        },
     )?;
-    if !rows.is_empty() {
-        print!("{}", std::fs::read_to_string(out.join("table.md"))?);
-        println!(
-            "wrote {0}/table.md, table.csv, table.json, trials.csv, speed_vs_error.png",
-            out.display()
-        );
+    match plan.shard {
+        Some(shard) => println!(
+            "shard {}/{}: {} test instances; wrote {}/{}",
+            shard.index,
+            shard.count,
+            rows.len(),
+            out.display(),
+            shard::FILE
+        ),
+        None if !rows.is_empty() => {
+            print!("{}", std::fs::read_to_string(out.join("table.md"))?);
+            println!(
+                "wrote {0}/table.md, table.csv, table.json, trials.csv, speed_vs_error.png",
+                out.display()
+            );
+        }
+        None => {}
     }
     if !failures.is_empty() {
         bail!(
@@ -282,7 +396,7 @@ fn evaluate(
             if rows.is_empty() {
                 String::new()
             } else {
-                format!(" (the others' tables are in {})", out.display())
+                format!(" (the others' rows are in {})", out.display())
             },
             failures.join("\n  ")
         );
@@ -438,27 +552,24 @@ fn category_dirs(dataset: &Path) -> Result<Vec<PathBuf>> {
     Ok(dirs)
 }
 
-/// Builds each category's shape space from train/ and evaluates every test instance,
-/// after checking every chosen category (`check-dataset`): what would make the figures
-/// meaningless stops the run before any work unless `skip_checks`. `on_category` sees all
-/// rows so far after each category (to write them: a later failure keeps them). A
-/// category that fails on the way (a mesh that does not load, a registration error) does
-/// not stop the others: the failures are returned next to the rows.
-pub fn eval(
+/// Builds each category's shape space from train/ (or reads it from the plan's spaces)
+/// and evaluates every test instance (or the plan's shard's), after checking every chosen
+/// category (`check-dataset`): what would make the figures meaningless stops the run
+/// before any work unless `skip_checks`. `on_row` sees the units to evaluate, the rows so
+/// far (in the unsharded order) and the failures after each instance and each failed
+/// category (to write them: a later failure keeps them). A category that fails on the way
+/// (a mesh that does not load, a registration error) does not stop the others: the
+/// failures are returned next to the rows.
+fn eval(
     ctx: &Context,
     dataset: &Path,
     settings: &EvalSettings,
     only: Option<&[String]>,
     skip_checks: bool,
-    mut on_category: impl FnMut(&[Row]) -> Result<()>,
-) -> Result<(Vec<Row>, Vec<String>)> {
+    plan: &Plan,
+    mut on_row: impl FnMut(&[shard::Unit], &[shard::Placed], &[String]) -> Result<()>,
+) -> Result<(Vec<shard::Placed>, Vec<String>)> {
     let mut chosen = category_dirs(dataset)?;
-    if chosen.is_empty() {
-        bail!(
-            "{} holds no category folders (each with canonical.obj, train/ and test/)",
-            dataset.display()
-        );
-    }
     if let Some(only) = only {
         let name = |d: &PathBuf| {
             d.file_name()
@@ -476,43 +587,143 @@ pub fn eval(
         }
         chosen.retain(|d| only.contains(&name(d)));
     }
+    // Every unit of work (a test instance) and its expected cost, the canonical's vertices.
     let mut checked = Vec::new();
-    for dir in &chosen {
+    let (mut units, mut costs) = (Vec::new(), Vec::new());
+    for (c, dir) in chosen.iter().enumerate() {
         let category = crate::check_cmd::check_first(dir, skip_checks, false)?;
-        let has_tests = category
-            .meshes
-            .iter()
-            .any(|(s, _)| s.role == vkdr_app::check::Role::Test);
-        if !has_tests {
+        let tests = obj_files(&dir.join("test"))?;
+        if tests.is_empty() {
             bail!("{}: test/ has no meshes to evaluate", dir.display());
         }
-        checked.push((dir.clone(), category.info.up));
-    }
-    let registrar = Registrar::new(ctx)?;
-    let mut rows = Vec::new();
-    let mut failures = Vec::new();
-    for (dir, up) in checked {
-        let category = dir
+        let name = dir
             .file_name()
             .unwrap_or_default()
             .to_string_lossy()
             .into_owned();
+        let vertices = Mesh::load_obj(dir.join("canonical.obj"))?.vertex_count();
+        for (i, test) in tests.iter().enumerate() {
+            units.push(shard::Unit {
+                category: c,
+                instance: i,
+                category_name: name.clone(),
+                instance_name: stem(test),
+            });
+            costs.push(vertices as f64);
+        }
+        checked.push((dir.clone(), name, category.info.up, tests));
+    }
+    if let Some(shard) = plan.shard {
+        let assigned = shard::assign(&costs, shard.count);
+        let mut mine = assigned.iter().map(|&s| s == shard.index);
+        units.retain(|_| mine.next().expect("one shard per unit"));
+    }
+    let registrar = Registrar::new(ctx)?;
+    let mut rows = Vec::new();
+    let mut failures = Vec::new();
+    on_row(&units, &rows, &failures)?;
+    for (c, (dir, category, up, tests)) in checked.into_iter().enumerate() {
+        let mine: Vec<&shard::Unit> = units.iter().filter(|u| u.category == c).collect();
+        if mine.is_empty() {
+            continue;
+        }
         let settings = EvalSettings {
             up,
             ..settings.clone()
         };
-        match evaluate_category(ctx, &registrar, &dir, &category, &settings) {
-            Ok(of) => {
-                rows.extend(of);
-                on_category(&rows)?;
+        let result = (|| -> Result<()> {
+            let space = shared_space(ctx, &dir, &category, &settings, plan.spaces)?;
+            for unit in mine {
+                let row = evaluate_instance(
+                    ctx,
+                    &registrar,
+                    &space,
+                    &category,
+                    &tests[unit.instance],
+                    &settings,
+                )?;
+                rows.push(shard::Placed {
+                    unit: unit.clone(),
+                    row,
+                });
+                on_row(&units, &rows, &failures)?;
             }
-            Err(e) => {
-                eprintln!("\n{category}: failed, going on with the others: {e:#}");
-                failures.push(format!("{category}: {e:#}"));
-            }
+            Ok(())
+        })();
+        if let Err(e) = result {
+            eprintln!("\n{category}: failed, going on with the others: {e:#}");
+            failures.push(format!("{category}: {e:#}"));
+            on_row(&units, &rows, &failures)?;
         }
     }
     Ok((rows, failures))
+}
+
+/// A file's name without its extension.
+fn stem(path: &Path) -> String {
+    path.file_stem()
+        .unwrap_or_default()
+        .to_string_lossy()
+        .into_owned()
+}
+
+/// The category's shape space: read from `spaces` (CATEGORY.npz) where it is there and
+/// built from the dataset where not (and saved there, where given). A space read is
+/// checked against the dataset and the settings: the same category, canonical, training
+/// files, dimensions and kernel width.
+fn shared_space(
+    ctx: &Context,
+    dir: &Path,
+    category: &str,
+    settings: &EvalSettings,
+    spaces: Option<&Path>,
+) -> Result<ShapeSpace> {
+    let Some(spaces) = spaces else {
+        return category_space(ctx, dir, category, settings);
+    };
+    let path = spaces.join(format!("{category}.npz"));
+    if !path.exists() {
+        let space = category_space(ctx, dir, category, settings)?;
+        std::fs::create_dir_all(spaces)
+            .with_context(|| format!("creating {}", spaces.display()))?;
+        // Another shard may save the same space at once: the same bytes, each renamed
+        // into place whole.
+        space.save(&path)?;
+        return Ok(space);
+    }
+    let space = ShapeSpace::load(&path)?;
+    let canonical = Mesh::load_obj(dir.join("canonical.obj"))?;
+    let training: Vec<String> = obj_files(&dir.join("train"))?
+        .iter()
+        .map(|f| f.display().to_string())
+        .collect();
+    let beta = settings.cpd.beta * vkdr::cpd::Normalization::of(&canonical.points()).scale;
+    let dims = settings.dims.min(training.len().saturating_sub(1));
+    let problem = if space.category != category {
+        Some(format!("is the space of {}", space.category))
+    } else if space.canonical.positions() != canonical.positions()
+        || space.canonical.triangles() != canonical.triangles()
+    {
+        Some("has another canonical mesh".to_string())
+    } else if space.training_names != training {
+        Some("was built from other training files".to_string())
+    } else if space.beta != beta || space.dims() > dims {
+        Some(format!(
+            "was built with other settings ({} dimensions, kernel width {}; this run: at most {dims}, {beta})",
+            space.dims(),
+            space.beta
+        ))
+    } else {
+        None
+    };
+    if let Some(problem) = problem {
+        bail!(
+            "--spaces: {} {problem} than {} asks for; give another --spaces folder",
+            path.display(),
+            dir.display()
+        );
+    }
+    Ok(space)
 }
 
 /// The shape space of the category folder `dir` from its canonical.obj and train/, with
@@ -543,57 +754,49 @@ pub fn category_space(
     )?)
 }
 
-/// One category: its shape space from train/, then every test instance.
-fn evaluate_category(
+/// One test instance of a category.
+fn evaluate_instance(
     ctx: &Context,
     registrar: &Registrar,
-    dir: &Path,
+    space: &ShapeSpace,
     category: &str,
+    test: &Path,
     settings: &EvalSettings,
-) -> Result<Vec<Row>> {
-    let space = category_space(ctx, dir, category, settings)?;
-    let mut rows = Vec::new();
-    for test in obj_files(&dir.join("test"))? {
-        let name = test
-            .file_stem()
-            .unwrap_or_default()
-            .to_string_lossy()
-            .into_owned();
-        let mesh = Mesh::load_obj(&test)?;
-        let row = eval::evaluate_instance(
-            ctx,
-            registrar,
-            &space,
-            category,
-            &name,
-            &mesh,
-            settings,
-            eval::TrialSource::Rendered,
-            |done, total| {
-                eprint!("\r  {name:<22} trial {done}/{total}  ");
-            },
-        )?;
+) -> Result<Row> {
+    let name = stem(test);
+    let mesh = Mesh::load_obj(test)?;
+    let row = eval::evaluate_instance(
+        ctx,
+        registrar,
+        space,
+        category,
+        &name,
+        &mesh,
+        settings,
+        eval::TrialSource::Rendered,
+        |done, total| {
+            eprint!("\r  {name:<22} trial {done}/{total}  ");
+        },
+    )?;
+    eprintln!(
+        "\r  {name:<22} oracle {:.2} mm (space optimum {:.2}), known pose {:.2} mm ({:.2}x), pose noise {:.2} mm ({:.2}x), {:.0} ms",
+        1e3 * row.oracle,
+        1e3 * row.space_optimum,
+        1e3 * row.known_pose.mean,
+        row.known_pose.mean / row.oracle,
+        1e3 * row.pose_noise.mean,
+        row.pose_noise.mean / row.oracle,
+        row.ms
+    );
+    if let Some(f) = row.from_truth {
         eprintln!(
-            "\r  {name:<22} oracle {:.2} mm (space optimum {:.2}), known pose {:.2} mm ({:.2}x), pose noise {:.2} mm ({:.2}x), {:.0} ms",
-            1e3 * row.oracle,
-            1e3 * row.space_optimum,
-            1e3 * row.known_pose.mean,
-            row.known_pose.mean / row.oracle,
-            1e3 * row.pose_noise.mean,
-            row.pose_noise.mean / row.oracle,
-            row.ms
+            "  {:<22} from the true pose {:.2} mm ({:.2}x)",
+            "",
+            1e3 * f.mean,
+            f.mean / row.oracle
         );
-        if let Some(f) = row.from_truth {
-            eprintln!(
-                "  {:<22} from the true pose {:.2} mm ({:.2}x)",
-                "",
-                1e3 * f.mean,
-                f.mean / row.oracle
-            );
-        }
-        rows.push(row);
     }
-    Ok(rows)
+    Ok(row)
 }
 
 /// Each category's means over its test instances, and the ratios of those means.

@@ -17,6 +17,7 @@ mod pictures;
 mod register_cmd;
 mod render_cmd;
 mod shape_cmd;
+mod shard;
 
 use std::path::PathBuf;
 
@@ -128,7 +129,7 @@ fn claim_out(command: &Command, force: bool) -> Result<Option<PathBuf>> {
         Command::Cpd(args) => &args.out,
         Command::Render(args) => &args.out,
         Command::Grad(args) => &args.out,
-        Command::Eval(args) => &args.out,
+        Command::Eval(args) => args.out(),
         Command::EvalFrames(args) => &args.out,
         Command::GenFrames(args) => &args.out,
         Command::BenchRegister(args) => &args.out,

@@ -1,0 +1,149 @@
+//! `vkdr eval --shard K/N` and `--merge`: the merged tables of 1, 3 and 7 shards are the
+//! bytes of the unsharded run's (the wall times aside), and the merge refuses a missing
+//! shard, a shard given twice and a shard of another run.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn vkdr(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_vkdr"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn ok(args: &[&str]) {
+    let out = vkdr(args);
+    assert!(
+        out.status.success(),
+        "vkdr {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// The error of a command that must fail.
+fn fails(args: &[&str]) -> String {
+    let out = vkdr(args);
+    assert!(!out.status.success(), "vkdr {args:?} succeeded");
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// table.json without its wall times (`ms`, `noise_ms`).
+fn table_without_times(out: &Path) -> serde_json::Value {
+    fn strip(v: &mut serde_json::Value) {
+        match v {
+            serde_json::Value::Object(map) => {
+                map.retain(|k, _| k != "ms" && !k.ends_with("_ms"));
+                map.values_mut().for_each(strip);
+            }
+            serde_json::Value::Array(items) => items.iter_mut().for_each(strip),
+            _ => {}
+        }
+    }
+    let mut table: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("table.json")).unwrap()).unwrap();
+    strip(&mut table);
+    table
+}
+
+#[test]
+fn merged_shards_are_the_unsharded_tables() {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("shards");
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let data = dir.join("data");
+    vkdr_app::dataset::generate(&data, 0, 4, 2, |_, _, _| {}).unwrap();
+    let spaces = dir.join("spaces");
+    let run = [
+        "eval",
+        "--dataset",
+        s(&data),
+        "--categories",
+        "bottle,mug",
+        "--trials",
+        "2",
+        "--known-iterations",
+        "4",
+        "--noise-iterations",
+        "4",
+        "--align",
+        "2",
+        "--starts",
+        "2",
+        "--spaces",
+        s(&spaces),
+    ];
+    let full = dir.join("full");
+    ok(&[&run[..], &["--out", s(&full)]].concat());
+    let rows = table_without_times(&full);
+    assert_eq!(rows.as_array().unwrap().len(), 4);
+    let trials = std::fs::read(full.join("trials.csv")).unwrap();
+
+    let shard_dirs = |n: usize| -> Vec<PathBuf> {
+        (0..n)
+            .map(|k| {
+                let out = dir.join(format!("n{n}_{k}"));
+                let shard = format!("{k}/{n}");
+                ok(&[&run[..], &["--shard", &shard, "--out", s(&out)]].concat());
+                out
+            })
+            .collect()
+    };
+    for n in [1, 3, 7] {
+        let shards = shard_dirs(n);
+        let merged = dir.join(format!("merged{n}"));
+        let mut args = vec!["eval", "--merge", s(&merged)];
+        // Given in any order.
+        args.extend(shards.iter().rev().map(|d| s(d)));
+        ok(&args);
+        assert_eq!(table_without_times(&merged), rows, "{n} shards' table.json");
+        assert!(
+            std::fs::read(merged.join("trials.csv")).unwrap() == trials,
+            "{n} shards' trials.csv"
+        );
+
+        if n == 3 {
+            let said = fails(&[
+                "eval",
+                "--merge",
+                s(&dir.join("m_missing")),
+                s(&shards[0]),
+                s(&shards[2]),
+            ]);
+            assert!(said.contains("shard 1/3 of the run missing"), "{said}");
+            let said = fails(&[
+                "eval",
+                "--merge",
+                s(&dir.join("m_twice")),
+                s(&shards[0]),
+                s(&shards[1]),
+                s(&shards[1]),
+            ]);
+            assert!(said.contains("shard 1/3 is given twice"), "{said}");
+            let other = dir.join("other");
+            let mut flags = run.to_vec();
+            flags[6] = "3"; // --trials 3
+            ok(&[&flags[..], &["--shard", "2/3", "--out", s(&other)]].concat());
+            let said = fails(&[
+                "eval",
+                "--merge",
+                s(&dir.join("m_other")),
+                s(&shards[0]),
+                s(&shards[1]),
+                s(&other),
+            ]);
+            assert!(
+                said.contains("is a shard of another run") && said.contains("--trials 3"),
+                "{said}"
+            );
+            let said = fails(&["eval", "--merge", s(&dir.join("m_none")), s(&data)]);
+            assert!(said.contains("not a shard's output"), "{said}");
+        }
+    }
+    let said = fails(&[&run[..], &["--shard", "3/3", "--out", s(&dir.join("bad"))]].concat());
+    assert!(said.contains("--shard must be K/N"), "{said}");
+}
