@@ -62,7 +62,7 @@ pub struct CpdParams {
     /// source radii), where a larger one did not (1e5 points with lambda = 5000: 8.4e-6,
     /// in 229 s instead of 602 s on lavapipe), while 5000 stops 5e3 points early,
     /// oversmoothed (2.8e-2 against 1.1e-5 at 2), and 2e4 points with 10% missing and 2%
-    /// outliers (1.4e-3 against 2.1e-5 at 2): the table in the README, "cpd".
+    /// outliers (1.4e-3 against 2.1e-5 at 2): the table in docs/method.md, "Dense sets want a larger lambda".
     pub lambda: f64,
     /// Weight of the uniform outlier component, in (0, 1).
     pub w: f64,

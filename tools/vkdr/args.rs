@@ -16,7 +16,7 @@ pub struct CpdArgs {
     pub beta: f64,
     /// Smoothness weight. The data term grows with the points and this does not: dense
     /// noise-free sets wanted more (2 up to a few thousand points, hundreds at 2e4,
-    /// thousands at 1e5), sets with missing points and outliers did not (README, cpd).
+    /// thousands at 1e5), sets with missing points and outliers did not (docs/method.md, CPD).
     #[arg(long = "lambda", allow_negative_numbers = true, default_value_t = CpdParams::default().lambda)]
     pub lambda: f64,
     /// Outlier weight, in (0, 1).

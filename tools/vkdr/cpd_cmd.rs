@@ -38,7 +38,7 @@ pub fn run(args: &Args) -> Result<()> {
 }
 
 /// From this many source points, a lambda below DENSE_LAMBDA gets a note: on the peers'
-/// noise-free sets 2e4 points wanted hundreds, 1e5 thousands (the README's table; with
+/// noise-free sets 2e4 points wanted hundreds, 1e5 thousands (docs/method.md's table; with
 /// missing points and outliers 2 was right at 2e4 and 5000 oversmoothed).
 const DENSE_POINTS: usize = 10_000;
 const DENSE_LAMBDA: f64 = 100.0;
@@ -59,7 +59,7 @@ fn register(source: &Path, target: &Path, params: &CpdParams, out: &Path) -> Res
         eprintln!(
             "note: lambda {} smooths {} points little (the data term grows with the points, \
              the smoothness term does not); if regions end beside their correspondences, \
-             try hundreds to thousands (noise-free dense sets; README, cpd)",
+             try hundreds to thousands (noise-free dense sets; docs/method.md, CPD)",
             params.lambda,
             y.len()
         );

@@ -298,7 +298,7 @@ fn settings(args: &Args) -> Result<EvalSettings> {
 /// Merges the shards in `dirs` into the tables in `out` (an error when a category failed
 /// in a shard, after writing the others' rows).
 fn merge_shards(out: &Path, dirs: &[PathBuf]) -> Result<()> {
-    let merged = shard::merge(dirs)?;
+    let merged = shard::merge("eval", dirs)?;
     let flags = <Flags as clap::Parser>::try_parse_from(
         std::iter::once("eval".to_string())
             .chain(merged.run.iter().cloned())
@@ -363,7 +363,13 @@ fn evaluate(
             }
             Some(shard) => {
                 let file = file.get_or_insert_with(|| {
-                    shard::ShardFile::new(shard::run_flags(), shard, device.clone(), units.to_vec())
+                    shard::ShardFile::new(
+                        "eval",
+                        shard::run_flags("eval"),
+                        shard,
+                        device.clone(),
+                        units.to_vec(),
+                    )
                 });
                 file.rows = placed.to_vec();
                 file.failures = failures.to_vec();
@@ -671,7 +677,7 @@ fn stem(path: &Path) -> String {
 /// built from the dataset where not (and saved there, where given). A space read is
 /// checked against the dataset and the settings: the same category, canonical, training
 /// files, dimensions and kernel width.
-fn shared_space(
+pub fn shared_space(
     ctx: &Context,
     dir: &Path,
     category: &str,

@@ -4,7 +4,7 @@
 //! occluder, depth noise and holes) so that the whole path can be tried without one.
 
 use std::collections::BTreeMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context as _, Result};
 use glam::DVec3;
@@ -19,16 +19,18 @@ use vkdr_app::eval::{self, EvalSettings, GravitySource, Observation, TrialScene,
 
 use crate::args::DepthLossArgs;
 use crate::shape_cmd::obj_files;
+use crate::shard;
 
 #[derive(clap::Args)]
 pub struct Args {
     /// A BOP scene folder (scene_camera.json, scene_gt.json, depth/, mask_visib/, optionally
     /// mask/ and rgb/), or a folder of them.
-    dir: PathBuf,
+    #[arg(required_unless_present = "merge")]
+    dir: Option<PathBuf>,
     /// The map from BOP obj_id to category: {"OBJ_ID": {"category": DIR, "model": PLY or
     /// OBJ in millimetres, "model_to_category": {"translation": [m], "rotation": [axis-angle]}}}.
-    #[arg(long)]
-    categories: PathBuf,
+    #[arg(long, required_unless_present = "merge")]
+    categories: Option<PathBuf>,
     /// Pose-noise registrations per object (each from its own seeded noisy start).
     #[arg(long, default_value_t = 3)]
     trials: usize,
@@ -48,8 +50,85 @@ pub struct Args {
     dims: usize,
     #[command(flatten)]
     depth_loss: DepthLossArgs,
+    /// Evaluate shard K of N only (K from 0 to N-1), one frame's object a unit; writes
+    /// OUT/shard.json for --merge (as `vkdr eval --shard`).
     #[arg(long)]
-    pub out: PathBuf,
+    shard: Option<String>,
+    /// A folder of shape spaces (CATEGORY.npz), read where there, built and saved where not.
+    #[arg(long)]
+    spaces: Option<PathBuf>,
+    /// Merge the shards of a run: OUT, then the shards' --out folders.
+    #[arg(long, num_args = 2.., value_names = ["OUT", "SHARD_DIR"], conflicts_with_all = ["dir", "categories", "out", "shard", "spaces"])]
+    merge: Option<Vec<PathBuf>>,
+    #[arg(long, required_unless_present = "merge")]
+    out: Option<PathBuf>,
+}
+
+impl Args {
+    /// The output folder (--out, or the first folder of --merge).
+    pub fn out(&self) -> &Path {
+        match (&self.merge, &self.out) {
+            (Some(merge), _) => &merge[0],
+            (None, Some(out)) => out,
+            (None, None) => unreachable!("clap requires --out or --merge"),
+        }
+    }
+}
+
+/// `eval-frames`' flags alone, to read a merged run's flags back.
+#[derive(clap::Parser)]
+#[command(name = "eval-frames")]
+struct Flags {
+    #[command(flatten)]
+    args: Args,
+}
+
+/// The evaluation's settings from the flags (the camera and distance are each frame's).
+fn settings(args: &Args) -> Result<EvalSettings> {
+    if !(2..=1000).contains(&args.trials) {
+        bail!(
+            "--trials must be 2 to 1000 (a spread needs two), not {}",
+            args.trials
+        );
+    }
+    let mut base = EvalSettings {
+        trials: args.trials,
+        seed: args.seed,
+        dims: args.dims,
+        depth: Some(args.depth_loss.loss()?),
+        tilt_tolerance: args.tilt_tolerance.to_radians(),
+        gravity: match args.gravity.as_str() {
+            "known" => Some(GravitySource::Known),
+            "from-depth" => Some(GravitySource::FromDepth),
+            _ => None,
+        },
+        ..Default::default()
+    };
+    base.known_pose.optimize_scale = args.optimize_scale;
+    base.pose_noise.optimize_scale = args.optimize_scale;
+    Ok(base)
+}
+
+/// Merges the shards in `dirs` into the tables in `out`.
+fn merge_shards(out: &Path, dirs: &[PathBuf]) -> Result<()> {
+    let merged = shard::merge("eval-frames", dirs)?;
+    let flags = <Flags as clap::Parser>::try_parse_from(
+        std::iter::once("eval-frames".to_string())
+            .chain(merged.run.iter().cloned())
+            .chain(["--out".to_string(), out.display().to_string()]),
+    )
+    .context("the shards' flags")?;
+    let base = settings(&flags.args)?;
+    if !merged.rows.is_empty() {
+        crate::eval_cmd::write_reports(out, &merged.rows, &base, &merged.device)?;
+        print!("{}", std::fs::read_to_string(out.join("table.md"))?);
+    }
+    println!(
+        "merged {} shards: wrote {}/table.md, table.csv, table.json, trials.csv, speed_vs_error.png",
+        dirs.len(),
+        out.display()
+    );
+    Ok(())
 }
 
 /// A frame's object with what it needs: its category's index and its model in the
@@ -61,16 +140,22 @@ struct Target<'a> {
 }
 
 pub fn run(args: &Args) -> Result<()> {
-    if !(2..=1000).contains(&args.trials) {
-        bail!(
-            "--trials must be 2 to 1000 (a spread needs two), not {}",
-            args.trials
-        );
+    if let Some(merge) = &args.merge {
+        return merge_shards(&merge[0], &merge[1..]);
     }
-    let map = bop::read_map(&args.categories)?;
+    let base = settings(args)?;
+    let shard = args.shard.as_deref().map(shard::Shard::parse).transpose()?;
+    let (dir, map_file) = (
+        args.dir.as_deref().expect("clap requires DIR"),
+        args.categories
+            .as_deref()
+            .expect("clap requires --categories"),
+    );
+    let out = args.out();
+    let map = bop::read_map(map_file)?;
     // Every frame is read and checked before any work.
     let mut frames = Vec::new();
-    for scene in bop::scene_dirs(&args.dir)? {
+    for scene in bop::scene_dirs(dir)? {
         frames.extend(bop::read_scene(&scene)?);
     }
     let categories: Vec<PathBuf> = {
@@ -89,7 +174,7 @@ pub fn run(args: &Args) -> Result<()> {
                     frame.image,
                     object.gt_index,
                     object.obj_id,
-                    args.categories.display(),
+                    map_file.display(),
                     map.keys()
                         .map(|k| k.to_string())
                         .collect::<Vec<_>>()
@@ -111,40 +196,74 @@ pub fn run(args: &Args) -> Result<()> {
         .iter()
         .map(|(id, entry)| Ok((*id, model_in_category(entry)?)))
         .collect::<Result<_>>()?;
-    let mut base = EvalSettings {
-        trials: args.trials,
-        seed: args.seed,
-        dims: args.dims,
-        depth: Some(args.depth_loss.loss()?),
-        tilt_tolerance: args.tilt_tolerance.to_radians(),
-        gravity: match args.gravity.as_str() {
-            "known" => Some(GravitySource::Known),
-            "from-depth" => Some(GravitySource::FromDepth),
-            _ => None,
-        },
-        ..Default::default()
-    };
-    base.known_pose.optimize_scale = args.optimize_scale;
-    base.pose_noise.optimize_scale = args.optimize_scale;
-
     let ctx = Context::new()?;
     let device = format!("{} ({})", ctx.info().name, ctx.info().driver_info);
     let registrar = Registrar::new(&ctx)?;
-    let mut spaces: Vec<(String, ShapeSpace, DVec3)> = Vec::new();
-    for dir in &categories {
-        let checked = crate::check_cmd::check_first(dir, false, false)?;
-        let name = dir
-            .file_name()
+    let name_of = |dir: &Path| {
+        dir.file_name()
             .unwrap_or_default()
             .to_string_lossy()
-            .into_owned();
-        let space = crate::eval_cmd::category_space(&ctx, dir, &name, &base)?;
-        spaces.push((name, space, checked.info.up));
+            .into_owned()
+    };
+    // The units of work, each frame's object, and their expected cost (the category's
+    // canonical vertices); a shard keeps its own.
+    let mut units = Vec::new();
+    let mut costs = Vec::new();
+    let mut checked = Vec::new();
+    for dir in &categories {
+        checked.push(crate::check_cmd::check_first(dir, false, false)?.info.up);
     }
-
-    let mut rows = Vec::new();
-    for target in &targets {
-        let (category, space, up) = &spaces[target.category];
+    let vertices: Vec<usize> = categories
+        .iter()
+        .map(|dir| Ok(Mesh::load_obj(dir.join("canonical.obj"))?.vertex_count()))
+        .collect::<Result<_>>()?;
+    for (t, target) in targets.iter().enumerate() {
+        units.push(shard::Unit {
+            category: t,
+            instance: 0,
+            category_name: name_of(&categories[target.category]),
+            instance_name: target_name(target),
+        });
+        costs.push(vertices[target.category] as f64);
+    }
+    if let Some(shard) = shard {
+        let assigned = shard::assign(&costs, shard.count);
+        let mut mine = assigned.iter().map(|&s| s == shard.index);
+        units.retain(|_| mine.next().expect("one shard per unit"));
+    }
+    let mut file = shard.map(|shard| {
+        shard::ShardFile::new(
+            "eval-frames",
+            shard::run_flags("eval-frames"),
+            shard,
+            device.clone(),
+            units.clone(),
+        )
+    });
+    if let Some(file) = &file {
+        file.write(out)?;
+    }
+    let mut spaces: BTreeMap<usize, ShapeSpace> = BTreeMap::new();
+    let mut placed = Vec::new();
+    for unit in &units {
+        let target = &targets[unit.category];
+        let c = target.category;
+        if !spaces.contains_key(&c) {
+            let settings = EvalSettings {
+                up: checked[c],
+                ..base.clone()
+            };
+            let dir = &categories[c];
+            let space = crate::eval_cmd::shared_space(
+                &ctx,
+                dir,
+                &name_of(dir),
+                &settings,
+                args.spaces.as_deref(),
+            )?;
+            spaces.insert(c, space);
+        }
+        let (category, space, up) = (&unit.category_name, &spaces[&c], checked[c]);
         let frame = target.frame;
         let pose = map[&target.object.obj_id]
             .model_to_category
@@ -153,20 +272,17 @@ pub fn run(args: &Args) -> Result<()> {
         let settings = EvalSettings {
             camera: frame.camera,
             distance: pose.translation.length(),
-            up: *up,
+            up,
             ..base.clone()
         };
         let scene = frame_scene(frame, target.object, pose)?;
-        let name = format!(
-            "{}/{:06}/{}",
-            frame.scene, frame.image, target.object.gt_index
-        );
+        let name = &unit.instance_name;
         let row = eval::evaluate_instance(
             &ctx,
             &registrar,
             space,
             category,
-            &name,
+            name,
             &models[&target.object.obj_id],
             &settings,
             TrialSource::Frame(&scene),
@@ -178,15 +294,47 @@ pub fn run(args: &Args) -> Result<()> {
             row.known_pose.mean / row.space_optimum,
             1e3 * row.pose_noise_seen.mean
         );
-        rows.push(row);
-        crate::eval_cmd::write_reports(&args.out, &rows, &base, &device)?;
+        placed.push(shard::Placed {
+            unit: unit.clone(),
+            row,
+        });
+        match &mut file {
+            Some(file) => {
+                file.rows = placed.clone();
+                file.write(out)?;
+            }
+            None => {
+                let rows: Vec<eval::Row> = placed.iter().map(|p| p.row.clone()).collect();
+                crate::eval_cmd::write_reports(out, &rows, &base, &device)?;
+            }
+        }
     }
-    print!("{}", std::fs::read_to_string(args.out.join("table.md"))?);
-    println!(
-        "wrote {0}/table.md, table.csv, table.json, trials.csv, speed_vs_error.png",
-        args.out.display()
-    );
+    match shard {
+        Some(shard) => println!(
+            "shard {}/{}: {} objects; wrote {}/{}",
+            shard.index,
+            shard.count,
+            placed.len(),
+            out.display(),
+            shard::FILE
+        ),
+        None => {
+            print!("{}", std::fs::read_to_string(out.join("table.md"))?);
+            println!(
+                "wrote {0}/table.md, table.csv, table.json, trials.csv, speed_vs_error.png",
+                out.display()
+            );
+        }
+    }
     Ok(())
+}
+
+/// A frame's object's row name: SCENE/IMAGE/GT.
+fn target_name(target: &Target) -> String {
+    format!(
+        "{}/{:06}/{}",
+        target.frame.scene, target.frame.image, target.object.gt_index
+    )
 }
 
 /// The object's model (a PLY or OBJ in millimetres) in its category's frame (metres).

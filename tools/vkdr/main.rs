@@ -130,7 +130,7 @@ fn claim_out(command: &Command, force: bool) -> Result<Option<PathBuf>> {
         Command::Render(args) => &args.out,
         Command::Grad(args) => &args.out,
         Command::Eval(args) => args.out(),
-        Command::EvalFrames(args) => &args.out,
+        Command::EvalFrames(args) => args.out(),
         Command::GenFrames(args) => &args.out,
         Command::BenchRegister(args) => &args.out,
         Command::Register(args) => args.out(),

@@ -60,7 +60,7 @@ pub struct Args {
     depth: bool,
     #[command(flatten)]
     depth_loss: DepthLossArgs,
-    /// Further views of the object: a JSON file (see the README) with, for each camera after
+    /// Further views of the object: a JSON file (docs/formats.md, the views file) with, for each camera after
     /// the first, its intrinsics, its pose relative to the first camera and its images.
     #[arg(long)]
     views: Option<PathBuf>,

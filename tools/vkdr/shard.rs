@@ -84,6 +84,8 @@ pub struct Placed {
 #[derive(Serialize, Deserialize)]
 pub struct ShardFile {
     pub format: u32,
+    /// The command that ran it: `eval` or `eval-frames`.
+    pub command: String,
     /// The vkdr version that ran it.
     pub version: String,
     /// The run's flags after `eval`, without --shard, --out and --spaces: every shard of a
@@ -135,10 +137,17 @@ impl ShardFile {
         Ok(file)
     }
 
-    /// A new, empty file for `shard` of the run `run`.
-    pub fn new(run: Vec<String>, shard: Shard, device: String, units: Vec<Unit>) -> Self {
+    /// A new, empty file for `shard` of the `command` run with flags `run`.
+    pub fn new(
+        command: &str,
+        run: Vec<String>,
+        shard: Shard,
+        device: String,
+        units: Vec<Unit>,
+    ) -> Self {
         Self {
             format: FORMAT,
+            command: command.to_string(),
             version: env!("CARGO_PKG_VERSION").to_string(),
             run,
             shard: shard.index,
@@ -151,18 +160,21 @@ impl ShardFile {
     }
 }
 
-/// The flags of this process's `eval` run without those that do not change its results
-/// (--shard, --out, --spaces), as given.
-pub fn run_flags() -> Vec<String> {
+/// The flags of this process's `command` run (`eval`, `eval-frames`) without those that
+/// do not change its results (--shard, --out, --spaces, and the global --force), as given.
+pub fn run_flags(command: &str) -> Vec<String> {
     let args: Vec<String> = std::env::args().collect();
     let start = args
         .iter()
-        .position(|a| a == "eval")
+        .position(|a| a == command)
         .map_or(args.len(), |i| i + 1);
     let mut flags = Vec::new();
     let mut rest = args[start..].iter();
     while let Some(arg) = rest.next() {
         let name = arg.split('=').next().unwrap_or(arg);
+        if name == "--force" {
+            continue;
+        }
         if ["--shard", "--out", "--spaces"].contains(&name) {
             if !arg.contains('=') {
                 rest.next();
@@ -184,7 +196,7 @@ pub struct Merged {
     pub failures: Vec<String>,
 }
 
-pub fn merge(dirs: &[PathBuf]) -> Result<Merged> {
+pub fn merge(command: &str, dirs: &[PathBuf]) -> Result<Merged> {
     if dirs.is_empty() {
         bail!("--merge OUT SHARD_DIRS...: no shard folders given");
     }
@@ -192,6 +204,13 @@ pub fn merge(dirs: &[PathBuf]) -> Result<Merged> {
         .iter()
         .map(|d| ShardFile::read(d))
         .collect::<Result<Vec<_>>>()?;
+    if let Some((file, dir)) = files.iter().zip(dirs).find(|(f, _)| f.command != command) {
+        bail!(
+            "{} is a shard of `vkdr {}`, not of `vkdr {command}`",
+            dir.display(),
+            file.command
+        );
+    }
     let (first, first_dir) = (&files[0], &dirs[0]);
     let mut by_index: BTreeMap<usize, &Path> = BTreeMap::new();
     for (file, dir) in files.iter().zip(dirs) {
@@ -257,7 +276,7 @@ pub fn merge(dirs: &[PathBuf]) -> Result<Merged> {
     for pair in placed.windows(2) {
         if pair[0].0.unit == pair[1].0.unit {
             bail!(
-                "{} and {} both hold {}/{}: shards of one run hold each test instance once",
+                "{} and {} both hold {} {}: shards of one run hold each unit once",
                 pair[0].1.display(),
                 pair[1].1.display(),
                 pair[0].0.unit.category_name,

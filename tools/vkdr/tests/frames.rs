@@ -4,7 +4,7 @@
 //! millimetres, an instance 25% larger than the training set's. `vkdr eval-frames`
 //! registers them (gravity from the table fitted in the depth) and each case asserts the
 //! errors against the rendered truth; bad BOP input is refused with the file and key
-//! named, and nothing in --out is touched.
+//! named, and nothing in --out is touched. Two shards of a run merge into its tables.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -78,18 +78,52 @@ fn occluded_noisy_frames_on_a_table() {
         s(&frames),
     ]);
     let out = dir.join("out");
-    ok(&[
+    let spaces = dir.join("spaces");
+    let map = frames.join("map.json");
+    let run = [
         "eval-frames",
         s(&frames),
         "--categories",
-        s(&frames.join("map.json")),
+        s(&map),
         "--trials",
         "2",
-        "--out",
-        s(&out),
-    ]);
+        "--spaces",
+        s(&spaces),
+    ];
+    ok(&[&run[..], &["--out", s(&out)]].concat());
     let rows = rows(&out);
     assert_eq!(rows.len(), 4, "two bottles and two mugs");
+    // The same run in two shards (the shape spaces read back), merged: the same tables
+    // (wall times aside).
+    let shards: Vec<PathBuf> = (0..2).map(|k| dir.join(format!("shard{k}"))).collect();
+    for (k, shard) in shards.iter().enumerate() {
+        ok(&[&run[..], &["--shard", &format!("{k}/2"), "--out", s(shard)]].concat());
+    }
+    let merged = dir.join("merged");
+    ok(&[
+        "eval-frames",
+        "--merge",
+        s(&merged),
+        s(&shards[0]),
+        s(&shards[1]),
+    ]);
+    let without_times = |rows: Vec<serde_json::Value>| -> Vec<serde_json::Value> {
+        rows.into_iter()
+            .map(|mut row| {
+                let map = row.as_object_mut().unwrap();
+                map.retain(|k, _| k != "ms" && k != "noise_ms");
+                row
+            })
+            .collect()
+    };
+    assert_eq!(
+        without_times(self::rows(&merged)),
+        without_times(rows.clone())
+    );
+    assert_eq!(
+        std::fs::read(merged.join("trials.csv")).unwrap(),
+        std::fs::read(out.join("trials.csv")).unwrap()
+    );
     for row in &rows {
         let floor = row["space_optimum"].as_f64().unwrap().max(FOOTPRINT);
         let known = row["known_pose"]["mean"].as_f64().unwrap();
