@@ -3,7 +3,7 @@
 //! gen-frames`, which renders such frames from a generated dataset (with a table, an
 //! occluder, depth noise and holes) so that the whole path can be tried without one.
 
-use std::collections::BTreeMap;
+use std::collections::btree_map::{BTreeMap, Entry};
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context as _, Result};
@@ -248,22 +248,21 @@ pub fn run(args: &Args) -> Result<()> {
     for unit in &units {
         let target = &targets[unit.category];
         let c = target.category;
-        if !spaces.contains_key(&c) {
-            let settings = EvalSettings {
-                up: checked[c],
-                ..base.clone()
-            };
-            let dir = &categories[c];
-            let space = crate::eval_cmd::shared_space(
-                &ctx,
-                dir,
-                &name_of(dir),
-                &settings,
-                args.spaces.as_deref(),
-            )?;
-            spaces.insert(c, space);
-        }
-        let (category, space, up) = (&unit.category_name, &spaces[&c], checked[c]);
+        // Each category's space when its first unit needs it.
+        let space = match spaces.entry(c) {
+            Entry::Occupied(built) => built.into_mut(),
+            Entry::Vacant(slot) => {
+                let dir = &categories[c];
+                slot.insert(crate::eval_cmd::shared_space(
+                    &ctx,
+                    dir,
+                    &name_of(dir),
+                    &base,
+                    args.spaces.as_deref(),
+                )?)
+            }
+        };
+        let (category, up) = (&unit.category_name, checked[c]);
         let frame = target.frame;
         let pose = map[&target.object.obj_id]
             .model_to_category
