@@ -103,6 +103,23 @@ def test_cpd_agrees_with_the_command_line(device, mesh, cli, tmp_path):
     assert nearest(deformed) < 1e-3 < 0.2 * nearest(source)
 
 
+def test_shape_space_agrees_with_the_command_line(device, mesh, cli, tmp_path):
+    vertices, faces = mesh
+    category = tmp_path / "lumps"
+    (category / "train").mkdir(parents=True)
+    (category / "test").mkdir()
+    write_obj(category / "canonical.obj", vertices, faces)
+    instances = [lumpy(vertices, k).astype(np.float32) for k in range(4)]
+    for k, points in enumerate(instances):
+        write_obj(category / "train" / f"instance{k}.obj", points, faces)
+    write_obj(category / "test" / "test0.obj", lumpy(vertices, 7), faces)
+    cli("shape-space", category, "--dims", "3", "--out", tmp_path / "cli.npz")
+    space = vkdr.ShapeSpace.build(vertices, faces, instances, dims=3, category="lumps",
+                                  names=[f"instance{k}" for k in range(4)], device=device)
+    space.save(tmp_path / "module.npz")
+    assert (tmp_path / "module.npz").read_bytes() == (tmp_path / "cli.npz").read_bytes()
+
+
 def test_shape_space_round_trip(space, tmp_path):
     path = tmp_path / "lumps.npz"
     space.save(path)
