@@ -125,92 +125,137 @@ fn spray_bottle(rng: &mut Rng) -> Mesh {
     centred(&merged(&[body, head, nozzle]))
 }
 
-/// A tube of radius `small` along the arc of radius `big` about (`centre_x`, 0, 0) in the
-/// xy plane, from angle `from` to `to` (radians from +x towards +y), closed at both ends.
-fn arc_tube(
-    centre_x: f64,
-    big: f64,
-    small: f64,
-    from: f64,
-    to: f64,
-    rings: u32,
-    sides: u32,
-) -> Mesh {
-    let mut positions = Vec::new();
-    let axis = |u: f64| DVec3::new(centre_x + big * u.cos(), big * u.sin(), 0.0);
-    for i in 0..rings {
-        let u = from + (to - from) * i as f64 / (rings - 1) as f64;
-        let radial = DVec3::new(u.cos(), u.sin(), 0.0);
-        for j in 0..sides {
-            let v = std::f64::consts::TAU * j as f64 / sides as f64;
-            let p = axis(u) + small * (v.cos() * radial + v.sin() * DVec3::Z);
-            positions.push(p.as_vec3().to_array());
-        }
-    }
-    let (first, last) = (rings * sides, rings * sides + 1);
-    positions.push(axis(from).as_vec3().to_array());
-    positions.push(axis(to).as_vec3().to_array());
-    let at = |i: u32, j: u32| i * sides + j % sides;
-    let mut triangles = Vec::new();
-    for i in 0..rings - 1 {
-        for j in 0..sides {
-            triangles.push([at(i, j), at(i + 1, j), at(i + 1, j + 1)]);
-            triangles.push([at(i, j), at(i + 1, j + 1), at(i, j + 1)]);
-        }
-    }
-    for j in 0..sides {
-        triangles.push([first, at(0, j), at(0, j + 1)]);
-        triangles.push([last, at(rings - 1, j + 1), at(rings - 1, j)]);
-    }
-    Mesh::new(positions, triangles).expect("an arc tube is valid")
-}
-
-/// An open mug: a wall a few millimetres thick, an inside bottom, and a handle whose ends
-/// sit in the wall (its outer quarter), not in the cavity.
+/// An open mug: a wall a few millimetres thick, an inside bottom, and a handle welded to
+/// the wall (one closed surface, with a hole through it): a square tube along a half
+/// ellipse whose two ends are quads of the outer wall, taken out of it.
 fn mug(rng: &mut Rng) -> Mesh {
+    const SEGMENTS: u32 = 32;
+    /// Quads up the outer wall; the handle's ends are two of them.
+    const WALL_QUADS: usize = 12;
+    /// Cross-sections along the handle between its ends.
+    const HANDLE_STEPS: usize = 20;
     let h = rng.range(0.08, 0.115);
     let r = rng.range(0.035, 0.05);
     let top = r * rng.range(1.0, 1.12);
     let wall = rng.range(0.005, 0.007);
     let base = rng.range(0.006, 0.01);
-    let body = lathe_centred(
-        &[
-            (0.92 * r, 0.0),
-            (r, 0.04 * h),
-            (top, h),
-            (top - wall, h),
-            (r - wall, base),
-        ],
-        32,
-    );
-    // The outer radius at height y of the centred body (its box is centred in y).
-    let outer = |y: f64| {
-        let t = ((y + 0.5 * h - 0.04 * h) / (0.96 * h)).clamp(0.0, 1.0);
-        r + (top - r) * t
-    };
+    // Half the handle's height, and how far it stands out from the wall.
     let big = rng.range(0.25, 0.38) * h;
-    let small = rng.range(0.004, 0.006);
-    let centre_x = r + 0.5 * big;
-    // Each end where the arc's axis reaches the wall's outer quarter (bisection on the
-    // angle; the axis moves inwards from u = pi/2 to pi).
-    let end = |sign: f64| {
-        let inside = |u: f64| {
-            let (x, y) = (centre_x + big * u.cos(), sign * big * u.sin());
-            x < outer(y) - 0.25 * wall
-        };
-        let (mut lo, mut hi) = (std::f64::consts::FRAC_PI_2, std::f64::consts::PI);
-        for _ in 0..60 {
-            let mid = 0.5 * (lo + hi);
-            if inside(mid) {
-                hi = mid;
-            } else {
-                lo = mid;
+    let reach = rng.range(0.8, 1.2) * big;
+
+    let (y0, y1) = (0.04 * h, h);
+    let mut profile = vec![(0.92 * r, 0.0)];
+    profile.extend((0..=WALL_QUADS).map(|k| {
+        let t = k as f64 / WALL_QUADS as f64;
+        (r + (top - r) * t, y0 + (y1 - y0) * t)
+    }));
+    profile.extend([(top - wall, h), (r - wall, base)]);
+    let profile: Vec<(f32, f32)> = profile.iter().map(|&(r, y)| (r as f32, y as f32)).collect();
+    let body = Mesh::lathe(&profile, SEGMENTS).expect("the profile is valid");
+    // Mesh::lathe's vertex of profile point `i` (wall ring k is point 1 + k), segment `s`.
+    let at = |i: usize, s: u32| 1 + i as u32 * SEGMENTS + s % SEGMENTS;
+    let spacing = (y1 - y0) / WALL_QUADS as f64;
+    let half = ((big / spacing).round() as usize).clamp(1, WALL_QUADS / 2 - 1);
+    let middle =
+        (((0.55 * (y0 + y1) - y0) / spacing).round() as usize).clamp(half + 1, WALL_QUADS - half);
+    let (low, high) = (middle - half, middle + half - 1);
+    // The handle's end rings, corners in the order (-e, -n), (+e, -n), (+e, +n), (-e, +n),
+    // e the direction of the segments and n the handle's normal in its plane (up at the
+    // lower end, down at the upper, where the tube comes back).
+    let lower = [
+        at(1 + low, 0),
+        at(1 + low, 1),
+        at(2 + low, 1),
+        at(2 + low, 0),
+    ];
+    let upper = [
+        at(2 + high, 0),
+        at(2 + high, 1),
+        at(1 + high, 1),
+        at(1 + high, 0),
+    ];
+
+    let point = |v: u32| {
+        let p = body.positions()[v as usize];
+        DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)
+    };
+    let centre = |ring: &[u32; 4]| ring.iter().map(|&v| point(v)).sum::<DVec3>() / 4.0;
+    let angle = std::f64::consts::PI / SEGMENTS as f64;
+    let (d, e) = (
+        DVec3::new(angle.cos(), 0.0, angle.sin()),
+        DVec3::new(-angle.sin(), 0.0, angle.cos()),
+    );
+    let (from, to) = (centre(&lower), centre(&upper));
+    let (rho0, rho1) = (from.dot(d), to.dot(d));
+    // The half ellipse from the lower quad out and up to the upper quad, and its tangent.
+    let path = |u: f64| {
+        let rho = rho0 + (rho1 - rho0) * 0.5 * (1.0 - u.cos()) + reach * u.sin();
+        rho * d + (0.5 * (from.y + to.y) - 0.5 * (to.y - from.y) * u.cos()) * DVec3::Y
+    };
+    let tangent = |u: f64| {
+        let rho = (rho1 - rho0) * 0.5 * u.sin() + reach * u.cos();
+        (rho * d + 0.5 * (to.y - from.y) * u.sin() * DVec3::Y).normalize()
+    };
+    let half_width = |ring: &[u32; 4]| 0.5 * (point(ring[1]) - point(ring[0])).length();
+    let half_height = |ring: &[u32; 4]| 0.5 * (point(ring[3]) - point(ring[0])).length();
+    let mut positions = body.positions().to_vec();
+    let mut rings = vec![lower];
+    for i in 1..HANDLE_STEPS {
+        let u = std::f64::consts::PI * i as f64 / HANDLE_STEPS as f64;
+        let t = i as f64 / HANDLE_STEPS as f64;
+        let w = half_width(&lower) + (half_width(&upper) - half_width(&lower)) * t;
+        let v = half_height(&lower) + (half_height(&upper) - half_height(&lower)) * t;
+        let tan = tangent(u);
+        let n = DVec3::Y * tan.dot(d) - d * tan.dot(DVec3::Y);
+        let first = positions.len() as u32;
+        for (se, sn) in [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)] {
+            positions.push((path(u) + se * w * e + sn * v * n).as_vec3().to_array());
+        }
+        rings.push([first, first + 1, first + 2, first + 3]);
+    }
+    rings.push(upper);
+
+    // The wall without the two end quads, and the tube's sides, each facing away from
+    // the handle's path.
+    let ends: Vec<&[u32; 4]> = vec![&lower, &upper];
+    let mut triangles: Vec<[u32; 3]> = body
+        .triangles()
+        .iter()
+        .filter(|t| !ends.iter().any(|q| t.iter().all(|v| q.contains(v))))
+        .copied()
+        .collect();
+    let position = |v: u32| {
+        let p = positions[v as usize];
+        DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)
+    };
+    for (i, pair) in rings.windows(2).enumerate() {
+        let axis = 0.5
+            * (path(std::f64::consts::PI * i as f64 / HANDLE_STEPS as f64)
+                + path(std::f64::consts::PI * (i + 1) as f64 / HANDLE_STEPS as f64));
+        for k in 0..4 {
+            let quad = [
+                pair[0][k],
+                pair[0][(k + 1) % 4],
+                pair[1][(k + 1) % 4],
+                pair[1][k],
+            ];
+            let out = quad.iter().map(|&v| position(v)).sum::<DVec3>() / 4.0 - axis;
+            for mut tri in [[quad[0], quad[1], quad[2]], [quad[0], quad[2], quad[3]]] {
+                let (a, b, c) = (position(tri[0]), position(tri[1]), position(tri[2]));
+                if (b - a).cross(c - a).dot(out) < 0.0 {
+                    tri.swap(1, 2);
+                }
+                triangles.push(tri);
             }
         }
-        sign * hi
-    };
-    let handle = arc_tube(centre_x, big, small, end(-1.0), end(1.0), 24, 10);
-    centred(&merged(&[body, handle]))
+    }
+    let mug = Mesh::new(positions, triangles).expect("the welded mug is valid");
+    // The handle towards +x, as before.
+    centred(&transformed(
+        &mug,
+        DMat3::from_rotation_y(angle),
+        DVec3::ZERO,
+    ))
 }
 
 fn drill(rng: &mut Rng) -> Mesh {
@@ -384,6 +429,45 @@ mod tests {
             assert!((0.05..0.4).contains(&size), "{category}: {size} m");
             let centre = (0..3).map(|k| (hi[k] + lo[k]).abs()).fold(0.0f32, f32::max);
             assert!(centre < 1e-4, "{category} is centred");
+        }
+    }
+
+    /// The triangles' connected pieces (through shared vertices).
+    fn components(mesh: &Mesh) -> usize {
+        let mut parent: Vec<usize> = (0..mesh.vertex_count()).collect();
+        fn root(parent: &mut [usize], mut v: usize) -> usize {
+            while parent[v] != v {
+                parent[v] = parent[parent[v]];
+                v = parent[v];
+            }
+            v
+        }
+        for t in mesh.triangles() {
+            for k in 1..3 {
+                let (a, b) = (
+                    root(&mut parent, t[0] as usize),
+                    root(&mut parent, t[k] as usize),
+                );
+                parent[a] = b;
+            }
+        }
+        let mut roots: Vec<usize> = mesh
+            .triangles()
+            .iter()
+            .map(|t| root(&mut parent, t[0] as usize))
+            .collect();
+        roots.sort();
+        roots.dedup();
+        roots.len()
+    }
+
+    /// The mug's handle is welded to its wall: one closed surface, for every draw.
+    #[test]
+    fn mugs_are_one_piece() {
+        for seed in 0..20 {
+            let mug = instance("mug", &mut Rng::new(seed)).unwrap();
+            assert_eq!(components(&mug), 1, "seed {seed}");
+            assert!(is_watertight(&mug), "seed {seed}");
         }
     }
 }
