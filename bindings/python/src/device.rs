@@ -18,7 +18,7 @@ use vkdr::register::{self, Gravity, Job, Optimizer, OtherView, RegisterParams, R
 
 use crate::arrays::{self, array, bad};
 use crate::space::{Registration, ShapeSpace};
-use crate::OrPy;
+use crate::{OrPy, Progress};
 
 /// A device and the pipelines built on it so far. Its work runs one call at a time (a
 /// queue takes one submission at a time; two Python threads calling at once wait in turn,
@@ -343,8 +343,9 @@ impl Device {
     /// +-15, +-30 degrees, aligned, the best fitted), `up` ((0, 1, 0), the object's up
     /// axis), `gravity` (None, (x, y, z) up in the camera frame, or "from-depth"),
     /// `tilt_tolerance` (1 degree), `depth_huber` (0.01 m), `depth_weight` (1),
-    /// `occlusion` (0.02 m), `light` ((0, 0, -1)), `ambient` (0.2).
-    #[pyo3(signature = (space, mask, K, size, pose, *, depth=None, shading=None, ignore=None, views=None, **options))]
+    /// `occlusion` (0.02 m), `light` ((0, 0, -1)), `ambient` (0.2). `progress(iterations
+    /// done, iterations)` is called after each chunk of iterations where given.
+    #[pyo3(signature = (space, mask, K, size, pose, *, depth=None, shading=None, ignore=None, views=None, progress=None, **options))]
     #[allow(non_snake_case, clippy::too_many_arguments)]
     fn register<'py>(
         &self,
@@ -358,6 +359,7 @@ impl Device {
         shading: Option<&Bound<'py, PyAny>>,
         ignore: Option<&Bound<'py, PyAny>>,
         views: Option<&Bound<'py, PyList>>,
+        progress: Option<Py<PyAny>>,
         options: Option<&Bound<'py, PyDict>>,
     ) -> PyResult<Registration> {
         let options = Options::read(options)?;
@@ -370,16 +372,21 @@ impl Device {
         let others: Vec<OtherView> = further.iter().map(|f| f.other).collect();
         let looks = Looks::read_views(mask, depth, shading, ignore, camera, &further, &options)?;
         let space = space.get().inner.clone();
+        let progress = Progress::new(progress);
         let result = py.detach(|| {
             self.engine.run(|ctx, parts| {
                 let job = options.job(&space, &looks, view, &others)?;
                 let params = options.params(&looks, camera, !others.is_empty())?;
                 let starts = options.starts(view)?;
+                let total = params.total_iterations();
                 parts
                     .registrar(ctx)?
-                    .register_from_starts(ctx, job, &starts, &params, |_, _| {})
+                    .register_from_starts(ctx, job, &starts, &params, |done, _| {
+                        progress.call(done, total)
+                    })
             })
-        })?;
+        });
+        let result = progress.finish(result)?;
         Ok(Registration::new(&space, result))
     }
 
@@ -388,7 +395,7 @@ impl Device {
     /// options are `register`'s. With one start per observation they run together (one
     /// submission per chunk of iterations); with several, one after the other. Returns a
     /// list of `vkdr.Registration`.
-    #[pyo3(signature = (space, masks, K, size, poses, *, depths=None, **options))]
+    #[pyo3(signature = (space, masks, K, size, poses, *, depths=None, progress=None, **options))]
     #[allow(non_snake_case, clippy::too_many_arguments)]
     fn register_batch<'py>(
         &self,
@@ -399,6 +406,7 @@ impl Device {
         size: (i64, i64),
         poses: &Bound<'py, PyAny>,
         depths: Option<&Bound<'py, PyAny>>,
+        progress: Option<Py<PyAny>>,
         options: Option<&Bound<'py, PyDict>>,
     ) -> PyResult<Vec<Registration>> {
         let options = Options::read(options)?;
@@ -419,6 +427,7 @@ impl Device {
             })
             .collect::<PyResult<_>>()?;
         let space = space.get().inner.clone();
+        let progress = Progress::new(progress);
         let results = py.detach(|| {
             self.engine.run(|ctx, parts| {
                 let registrar = parts.registrar(ctx)?;
@@ -428,17 +437,25 @@ impl Device {
                     .zip(&poses)
                     .map(|(look, &pose)| options.job(&space, look, View { camera, pose }, &[]))
                     .collect::<vkdr::Result<Vec<Job>>>()?;
+                let total = params.total_iterations();
                 if options.start_count()? == 1 {
-                    return registrar.register_batch(ctx, &jobs, &params, |_, _| {});
+                    return registrar
+                        .register_batch(ctx, &jobs, &params, |done, _| progress.call(done, total));
                 }
+                // One observation after the other: the iterations of all of them.
+                let all = total * jobs.len();
                 jobs.iter()
-                    .map(|job| {
+                    .enumerate()
+                    .map(|(k, job)| {
                         let starts = options.starts(job.view)?;
-                        registrar.register_from_starts(ctx, *job, &starts, &params, |_, _| {})
+                        registrar.register_from_starts(ctx, *job, &starts, &params, |done, _| {
+                            progress.call(k * total + done, all)
+                        })
                     })
                     .collect()
             })
-        })?;
+        });
+        let results = progress.finish(results)?;
         Ok(results
             .into_iter()
             .map(|r| Registration::new(&space, r))

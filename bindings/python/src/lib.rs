@@ -43,6 +43,44 @@ impl<T> OrPy<T> for vkdr::Result<T> {
     }
 }
 
+/// A Python progress callback, `progress(done, total)`, called from the device's work with
+/// the GIL taken for the call; the first exception it raises is raised when the work ends.
+struct Progress {
+    callback: Option<Py<PyAny>>,
+    error: std::sync::Mutex<Option<PyErr>>,
+}
+
+impl Progress {
+    fn new(callback: Option<Py<PyAny>>) -> Self {
+        Self {
+            callback,
+            error: std::sync::Mutex::new(None),
+        }
+    }
+
+    fn call(&self, done: usize, total: usize) {
+        let Some(callback) = &self.callback else {
+            return;
+        };
+        Python::attach(|py| {
+            if let Err(e) = callback.call1(py, (done, total)) {
+                if let Ok(mut error) = self.error.lock() {
+                    error.get_or_insert(e);
+                }
+            }
+        });
+    }
+
+    /// The work's result, or the callback's first exception.
+    fn finish<T>(self, result: PyResult<T>) -> PyResult<T> {
+        let result = result?;
+        match self.error.into_inner().ok().flatten() {
+            Some(error) => Err(error),
+            None => Ok(result),
+        }
+    }
+}
+
 /// A mesh from `vertices` (V x 3, float) and `faces` (F x 3, integer indices into the
 /// vertices).
 fn mesh(vertices: &Bound<'_, PyAny>, faces: &Bound<'_, PyAny>) -> PyResult<Mesh> {

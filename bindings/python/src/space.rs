@@ -12,7 +12,7 @@ use vkdr::Mesh;
 
 use crate::arrays::{self, array, bad};
 use crate::device::{engine_of, Device};
-use crate::OrPy;
+use crate::{OrPy, Progress};
 
 /// Points from an (N, 3) float array.
 fn points(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<DVec3>> {
@@ -65,11 +65,12 @@ fn cpd_params(
 /// Non-rigid Coherent Point Drift of `source` (M x 3) onto `target` (N x 3), the E-step
 /// and kernel products on the device. `beta` is the kernel width in units of the source's
 /// RMS radius, `lam` the smoothness weight, `w` the outlier weight (defaults: the
-/// engine's, as `vkdr cpd`). Returns `(deformed, W, log)`: the moved source points
+/// engine's, as `vkdr cpd`). `progress(iteration, max_iterations)` is called each
+/// iteration where given. Returns `(deformed, W, log)`: the moved source points
 /// (M x 3, float64), the coefficients W (deformed = source + G W) and a dict (iterations,
 /// converged, stop, seconds, sigma2, ...).
 #[pyfunction]
-#[pyo3(signature = (source, target, beta=None, lam=None, w=None, max_iterations=None, tolerance=None, device=None))]
+#[pyo3(signature = (source, target, beta=None, lam=None, w=None, max_iterations=None, tolerance=None, device=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn cpd<'py>(
     py: Python<'py>,
@@ -81,16 +82,22 @@ pub fn cpd<'py>(
     max_iterations: Option<usize>,
     tolerance: Option<f64>,
     device: Option<&Bound<'py, Device>>,
+    progress: Option<Py<PyAny>>,
 ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>, Bound<'py, PyDict>)> {
     let params = cpd_params(beta, lam, w, max_iterations, tolerance)?;
     let y = points(source, "source")?;
     let x = points(target, "target")?;
     let engine = engine_of(py, device)?;
+    let progress = Progress::new(progress);
     let result = py.detach(|| {
         engine.run(|ctx, parts| {
-            vkdr::cpd::register(ctx, parts.cpd(ctx)?, &y, &x, &params, &mut |_, _| {})
+            let total = params.max_iterations;
+            vkdr::cpd::register(ctx, parts.cpd(ctx)?, &y, &x, &params, &mut |i, _| {
+                progress.call(i, total)
+            })
         })
-    })?;
+    });
+    let result = progress.finish(result)?;
     let log = PyDict::new(py);
     log.set_item("iterations", result.iterations)?;
     log.set_item("converged", result.stop.converged())?;
@@ -129,9 +136,9 @@ impl ShapeSpace {
     /// Builds a space from the canonical mesh (`vertices` V x 3, `faces` F x 3) and the
     /// training `instances` (a list of N_i x 3 point arrays, e.g. their vertices), with at
     /// most `dims` dimensions (never more than instances - 1). The CPD parameters are
-    /// `vkdr.cpd`'s.
+    /// `vkdr.cpd`'s; `progress(instances done, instances)` is called as each is registered.
     #[staticmethod]
-    #[pyo3(signature = (vertices, faces, instances, dims=5, category="object", names=None, beta=None, lam=None, w=None, device=None))]
+    #[pyo3(signature = (vertices, faces, instances, dims=5, category="object", names=None, beta=None, lam=None, w=None, device=None, progress=None))]
     #[allow(clippy::too_many_arguments)]
     fn build(
         py: Python<'_>,
@@ -145,6 +152,7 @@ impl ShapeSpace {
         lam: Option<f64>,
         w: Option<f64>,
         device: Option<&Bound<'_, Device>>,
+        progress: Option<Py<PyAny>>,
     ) -> PyResult<Self> {
         if dims == 0 {
             return Err(bad("dims", "must be at least 1"));
@@ -169,6 +177,7 @@ impl ShapeSpace {
             .map(|((k, obj), name)| Ok((name, points(&obj, &format!("instances[{k}]"))?)))
             .collect::<PyResult<Vec<_>>>()?;
         let engine = engine_of(py, device)?;
+        let progress = Progress::new(progress);
         let space = py.detach(|| {
             engine.run(|ctx, _| {
                 vkdr::shape::ShapeSpace::build(
@@ -178,10 +187,11 @@ impl ShapeSpace {
                     &training,
                     dims,
                     &params,
-                    |_, _, _| {},
+                    |done, total, _| progress.call(done, total),
                 )
             })
-        })?;
+        });
+        let space = progress.finish(space)?;
         Ok(Self {
             inner: Arc::new(space),
         })

@@ -174,3 +174,25 @@ def test_register_batch_is_each_registration(device, space):
         alone = device.register(space, mask, K, SIZE, pose)
         np.testing.assert_allclose(together.code, alone.code, rtol=1e-6, atol=1e-9)
         assert together.loss < together.losses[0]
+
+
+def test_progress_is_reported_and_its_exceptions_raised(device, space, mesh):
+    mask, _ = observe(device, space, 2, POSE)
+    seen = []
+    result = device.register(space, mask, K, SIZE, POSE, progress=lambda done, total: seen.append((done, total)))
+    assert seen and all(0 < done <= total == 30 for done, total in seen)
+    assert [d for d, _ in seen] == sorted(d for d, _ in seen) and seen[-1][0] == result.iterations
+
+    def stop(done, total):
+        raise KeyError("stop here")
+
+    with pytest.raises(KeyError, match="stop here"):
+        device.register(space, mask, K, SIZE, POSE, progress=stop)
+    instances = []
+    vertices, faces = mesh
+    vkdr.ShapeSpace.build(vertices, faces, [lumpy(vertices, k) for k in range(3)], dims=2, device=device,
+                          progress=lambda done, total: instances.append((done, total)))
+    assert instances[-1] == (3, 3)
+    iterations = []
+    vkdr.cpd(vertices, lumpy(vertices, 1), device=device, progress=lambda i, total: iterations.append(i))
+    assert iterations and iterations == sorted(iterations)
