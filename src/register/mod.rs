@@ -472,8 +472,9 @@ impl Registrar {
     /// makes such starts). With an alignment stage (pose optimised, `params.align` > 0)
     /// every start's pose is aligned (one batch) and only the aligned start with the least
     /// loss goes on to the joint fit: k starts cost k alignments and one fit (5 starts,
-    /// 15 + 60 iterations: 1.8 times one start). Without one, every start runs in full
-    /// (one [`Registrar::register_batch`]) and the least final loss is kept. The result's
+    /// 15 + 60 iterations: 1.73 times one start, 2.04 with 30 joint iterations; `vkdr
+    /// bench-register`). Without one, every start runs in full (one
+    /// [`Registrar::register_batch`]) and the least final loss is kept. The result's
     /// `milliseconds` is the wall time and its `iterations` count every start's. An error
     /// without starts.
     pub fn register_from_starts(

@@ -91,7 +91,7 @@ pub struct Args {
     /// With --optimize-pose: starts, the initial pose and it turned about the object's
     /// --up axis by +-15, +-30, ... degrees; each is aligned and the aligned pose with the
     /// least loss is fitted (1 to 8; against a rotation that stops in a local minimum;
-    /// 5 starts cost about 1.8 times one).
+    /// 5 starts cost 1.7-2 times one, docs/evaluation.md).
     #[arg(long, default_value_t = vkdr_app::eval::EvalSettings::default().starts)]
     starts: usize,
     /// The object's up axis for --starts and --gravity, in its own frame: x,y,z.
