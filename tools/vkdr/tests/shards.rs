@@ -83,15 +83,31 @@ fn merged_shards_are_the_unsharded_tables() {
     assert_eq!(rows.as_array().unwrap().len(), 4);
     let trials = std::fs::read(full.join("trials.csv")).unwrap();
 
+    // The shards of a run at once, as a cluster runs them.
     let shard_dirs = |n: usize| -> Vec<PathBuf> {
-        (0..n)
-            .map(|k| {
-                let out = dir.join(format!("n{n}_{k}"));
+        let outs: Vec<PathBuf> = (0..n).map(|k| dir.join(format!("n{n}_{k}"))).collect();
+        let children: Vec<_> = outs
+            .iter()
+            .enumerate()
+            .map(|(k, out)| {
                 let shard = format!("{k}/{n}");
-                ok(&[&run[..], &["--shard", &shard, "--out", s(&out)]].concat());
-                out
+                Command::new(env!("CARGO_BIN_EXE_vkdr"))
+                    .args([&run[..], &["--shard", &shard, "--out", s(out)]].concat())
+                    .stdout(std::process::Stdio::null())
+                    .stderr(std::process::Stdio::piped())
+                    .spawn()
+                    .unwrap()
             })
-            .collect()
+            .collect();
+        for (k, child) in children.into_iter().enumerate() {
+            let done = child.wait_with_output().unwrap();
+            assert!(
+                done.status.success(),
+                "shard {k}/{n}: {}",
+                String::from_utf8_lossy(&done.stderr)
+            );
+        }
+        outs
     };
     for n in [1, 3, 7] {
         let shards = shard_dirs(n);
