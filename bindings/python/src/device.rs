@@ -106,6 +106,15 @@ pub fn engine_of(py: Python<'_>, device: Option<&Bound<'_, Device>>) -> PyResult
     })
 }
 
+/// The device of calls given none (`vkdr.cpd`, `vkdr.ShapeSpace.build`,
+/// `vkdr.torch.silhouette_loss`): the best device, made on first use and shared.
+#[pyfunction]
+pub fn default_device(py: Python<'_>) -> PyResult<Device> {
+    Ok(Device {
+        engine: engine_of(py, None)?,
+    })
+}
+
 /// A Vulkan device: `Device()` picks the best (a discrete GPU first; `VKDR_DEVICE` or
 /// `name`, an index or part of a name, chooses another). `validation=True` turns on the
 /// Khronos validation layer.

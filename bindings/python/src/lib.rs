@@ -207,6 +207,7 @@ fn _vkdr(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<space::Registration>()?;
     m.add_function(wrap_pyfunction!(space::cpd, m)?)?;
     m.add_function(wrap_pyfunction!(space::load_mesh, m)?)?;
+    m.add_function(wrap_pyfunction!(device::default_device, m)?)?;
     m.add("UNKNOWN", vkdr::loss::UNKNOWN)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())

@@ -196,3 +196,12 @@ def test_progress_is_reported_and_its_exceptions_raised(device, space, mesh):
     iterations = []
     vkdr.cpd(vertices, lumpy(vertices, 1), device=device, progress=lambda i, total: iterations.append(i))
     assert iterations and iterations == sorted(iterations)
+
+
+def test_calls_without_a_device_share_the_default_one(mesh):
+    vertices, _ = mesh
+    vkdr.cpd(vertices, lumpy(vertices, 1))  # on the default device
+    shared = vkdr.default_device()
+    assert shared.engine_ms > 0, "the default device ran the cpd"
+    assert vkdr.Device().engine_ms == 0.0, "a new device has run nothing"
+    assert shared.name == vkdr.default_device().name

@@ -25,19 +25,9 @@ from ._vkdr import (
     ShapeSpace,
     __version__,
     cpd,
+    default_device,
     load_mesh,
 )
-
-_default_device = None
-
-
-def default_device():
-    """The device of calls given none: `Device()`, made on first use."""
-    global _default_device
-    if _default_device is None:
-        _default_device = Device()
-    return _default_device
-
 
 __all__ = [
     "UNKNOWN",
