@@ -161,11 +161,7 @@ pub struct Args {
 impl Args {
     /// The output folder (--out, or the first folder of --merge).
     pub fn out(&self) -> &Path {
-        match (&self.merge, &self.out) {
-            (Some(merge), _) => &merge[0],
-            (None, Some(out)) => out,
-            (None, None) => unreachable!("clap requires --out or --merge"),
-        }
+        shard::out_folder(&self.merge, &self.out)
     }
 }
 
@@ -181,10 +177,13 @@ struct Flags {
 /// merge of shards.
 pub fn run(args: &Args) -> Result<()> {
     if let Some(merge) = &args.merge {
-        return merge_shards(&merge[0], &merge[1..]);
+        return shard::write_merged("eval", &merge[0], &merge[1..], |line| {
+            settings(&<Flags as clap::Parser>::try_parse_from(line)?.args)
+        });
     }
     let settings = settings(args)?;
     let shard = args.shard.as_deref().map(shard::Shard::parse).transpose()?;
+    shard::check_spaces(args.spaces.as_deref())?;
     let plan = Plan {
         shard,
         spaces: args.spaces.as_deref(),
@@ -295,36 +294,6 @@ fn settings(args: &Args) -> Result<EvalSettings> {
     Ok(settings)
 }
 
-/// Merges the shards in `dirs` into the tables in `out` (an error when a category failed
-/// in a shard, after writing the others' rows).
-fn merge_shards(out: &Path, dirs: &[PathBuf]) -> Result<()> {
-    let merged = shard::merge("eval", dirs)?;
-    let flags = <Flags as clap::Parser>::try_parse_from(
-        std::iter::once("eval".to_string())
-            .chain(merged.run.iter().cloned())
-            .chain(["--out".to_string(), out.display().to_string()]),
-    )
-    .context("the shards' flags")?;
-    let settings = settings(&flags.args)?;
-    if !merged.rows.is_empty() {
-        write_reports(out, &merged.rows, &settings, &merged.device)?;
-        print!("{}", std::fs::read_to_string(out.join("table.md"))?);
-        println!(
-            "merged {} shards: wrote {1}/table.md, table.csv, table.json, trials.csv, speed_vs_error.png",
-            dirs.len(),
-            out.display()
-        );
-    }
-    if !merged.failures.is_empty() {
-        bail!(
-            "{} categories failed in the shards:\n  {}",
-            merged.failures.len(),
-            merged.failures.join("\n  ")
-        );
-    }
-    Ok(())
-}
-
 /// What of the dataset one process evaluates, and where the shape spaces are kept.
 struct Plan<'a> {
     /// Only this shard's test instances (all without).
@@ -357,6 +326,9 @@ fn evaluate(
         skip_checks,
         plan,
         |units, placed, failures| match plan.shard {
+            // No tables before a row: a run whose every category fails leaves --out as
+            // it found it.
+            None if placed.is_empty() => Ok(()),
             None => {
                 let rows: Vec<Row> = placed.iter().map(|p| p.row.clone()).collect();
                 write_reports(out, &rows, &settings, &device)
@@ -577,13 +549,7 @@ fn eval(
 ) -> Result<(Vec<shard::Placed>, Vec<String>)> {
     let mut chosen = category_dirs(dataset)?;
     if let Some(only) = only {
-        let name = |d: &PathBuf| {
-            d.file_name()
-                .unwrap_or_default()
-                .to_string_lossy()
-                .into_owned()
-        };
-        let names: Vec<String> = chosen.iter().map(name).collect();
+        let names: Vec<String> = chosen.iter().map(|d| dir_name(d)).collect();
         if let Some(missing) = only.iter().find(|c| !names.contains(c)) {
             bail!(
                 "--categories: {} has no category \"{missing}\" (it has {})",
@@ -591,7 +557,7 @@ fn eval(
                 names.join(", ")
             );
         }
-        chosen.retain(|d| only.contains(&name(d)));
+        chosen.retain(|d| only.contains(&dir_name(d)));
     }
     // Every unit of work (a test instance) and its expected cost, the canonical's vertices.
     let mut checked = Vec::new();
@@ -602,12 +568,8 @@ fn eval(
         if tests.is_empty() {
             bail!("{}: test/ has no meshes to evaluate", dir.display());
         }
-        let name = dir
-            .file_name()
-            .unwrap_or_default()
-            .to_string_lossy()
-            .into_owned();
-        let vertices = Mesh::load_obj(dir.join("canonical.obj"))?.vertex_count();
+        let name = dir_name(dir);
+        let cost = shard::unit_cost(&category)?;
         for (i, test) in tests.iter().enumerate() {
             units.push(shard::Unit {
                 category: c,
@@ -615,15 +577,11 @@ fn eval(
                 category_name: name.clone(),
                 instance_name: stem(test),
             });
-            costs.push(vertices as f64);
+            costs.push(cost);
         }
         checked.push((dir.clone(), name, category.info.up, tests));
     }
-    if let Some(shard) = plan.shard {
-        let assigned = shard::assign(&costs, shard.count);
-        let mut mine = assigned.iter().map(|&s| s == shard.index);
-        units.retain(|_| mine.next().expect("one shard per unit"));
-    }
+    shard::keep_own(&mut units, &costs, plan.shard);
     let registrar = Registrar::new(ctx)?;
     let mut rows = Vec::new();
     let mut failures = Vec::new();
@@ -663,6 +621,14 @@ fn eval(
         }
     }
     Ok((rows, failures))
+}
+
+/// A folder's (a category's) name.
+pub fn dir_name(dir: &Path) -> String {
+    dir.file_name()
+        .unwrap_or_default()
+        .to_string_lossy()
+        .into_owned()
 }
 
 /// A file's name without its extension.

@@ -18,6 +18,7 @@ use vkdr_app::bop::{self, Frame, FrameObject, ObjectCategory};
 use vkdr_app::eval::{self, EvalSettings, GravitySource, Observation, TrialScene, TrialSource};
 
 use crate::args::DepthLossArgs;
+use crate::eval_cmd::dir_name;
 use crate::shape_cmd::obj_files;
 use crate::shard;
 
@@ -67,11 +68,7 @@ pub struct Args {
 impl Args {
     /// The output folder (--out, or the first folder of --merge).
     pub fn out(&self) -> &Path {
-        match (&self.merge, &self.out) {
-            (Some(merge), _) => &merge[0],
-            (None, Some(out)) => out,
-            (None, None) => unreachable!("clap requires --out or --merge"),
-        }
+        shard::out_folder(&self.merge, &self.out)
     }
 }
 
@@ -109,28 +106,6 @@ fn settings(args: &Args) -> Result<EvalSettings> {
     Ok(base)
 }
 
-/// Merges the shards in `dirs` into the tables in `out`.
-fn merge_shards(out: &Path, dirs: &[PathBuf]) -> Result<()> {
-    let merged = shard::merge("eval-frames", dirs)?;
-    let flags = <Flags as clap::Parser>::try_parse_from(
-        std::iter::once("eval-frames".to_string())
-            .chain(merged.run.iter().cloned())
-            .chain(["--out".to_string(), out.display().to_string()]),
-    )
-    .context("the shards' flags")?;
-    let base = settings(&flags.args)?;
-    if !merged.rows.is_empty() {
-        crate::eval_cmd::write_reports(out, &merged.rows, &base, &merged.device)?;
-        print!("{}", std::fs::read_to_string(out.join("table.md"))?);
-    }
-    println!(
-        "merged {} shards: wrote {}/table.md, table.csv, table.json, trials.csv, speed_vs_error.png",
-        dirs.len(),
-        out.display()
-    );
-    Ok(())
-}
-
 /// A frame's object with what it needs: its category's index and its model in the
 /// category's frame.
 struct Target<'a> {
@@ -141,10 +116,13 @@ struct Target<'a> {
 
 pub fn run(args: &Args) -> Result<()> {
     if let Some(merge) = &args.merge {
-        return merge_shards(&merge[0], &merge[1..]);
+        return shard::write_merged("eval-frames", &merge[0], &merge[1..], |line| {
+            settings(&<Flags as clap::Parser>::try_parse_from(line)?.args)
+        });
     }
     let base = settings(args)?;
     let shard = args.shard.as_deref().map(shard::Shard::parse).transpose()?;
+    shard::check_spaces(args.spaces.as_deref())?;
     let (dir, map_file) = (
         args.dir.as_deref().expect("clap requires DIR"),
         args.categories
@@ -199,38 +177,26 @@ pub fn run(args: &Args) -> Result<()> {
     let ctx = Context::new()?;
     let device = format!("{} ({})", ctx.info().name, ctx.info().driver_info);
     let registrar = Registrar::new(&ctx)?;
-    let name_of = |dir: &Path| {
-        dir.file_name()
-            .unwrap_or_default()
-            .to_string_lossy()
-            .into_owned()
-    };
     // The units of work, each frame's object, and their expected cost (the category's
     // canonical vertices); a shard keeps its own.
     let mut units = Vec::new();
     let mut costs = Vec::new();
+    // Each category's up axis and the expected cost of its units.
     let mut checked = Vec::new();
     for dir in &categories {
-        checked.push(crate::check_cmd::check_first(dir, false, false)?.info.up);
+        let category = crate::check_cmd::check_first(dir, false, false)?;
+        checked.push((category.info.up, shard::unit_cost(&category)?));
     }
-    let vertices: Vec<usize> = categories
-        .iter()
-        .map(|dir| Ok(Mesh::load_obj(dir.join("canonical.obj"))?.vertex_count()))
-        .collect::<Result<_>>()?;
     for (t, target) in targets.iter().enumerate() {
         units.push(shard::Unit {
             category: t,
             instance: 0,
-            category_name: name_of(&categories[target.category]),
+            category_name: dir_name(&categories[target.category]),
             instance_name: target_name(target),
         });
-        costs.push(vertices[target.category] as f64);
+        costs.push(checked[target.category].1);
     }
-    if let Some(shard) = shard {
-        let assigned = shard::assign(&costs, shard.count);
-        let mut mine = assigned.iter().map(|&s| s == shard.index);
-        units.retain(|_| mine.next().expect("one shard per unit"));
-    }
+    shard::keep_own(&mut units, &costs, shard);
     let mut file = shard.map(|shard| {
         shard::ShardFile::new(
             "eval-frames",
@@ -256,13 +222,13 @@ pub fn run(args: &Args) -> Result<()> {
                 slot.insert(crate::eval_cmd::shared_space(
                     &ctx,
                     dir,
-                    &name_of(dir),
+                    &dir_name(dir),
                     &base,
                     args.spaces.as_deref(),
                 )?)
             }
         };
-        let (category, up) = (&unit.category_name, checked[c]);
+        let (category, up) = (&unit.category_name, checked[c].0);
         let frame = target.frame;
         let pose = map[&target.object.obj_id]
             .model_to_category

@@ -17,7 +17,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context as _, Result};
 use serde::{Deserialize, Serialize};
 
-use vkdr_app::eval::Row;
+use vkdr_app::check::{Category, Role};
+use vkdr_app::eval::{EvalSettings, Row};
 
 /// The shard file's name in a shard's --out.
 pub const FILE: &str = "shard.json";
@@ -61,6 +62,82 @@ pub fn assign(costs: &[f64], count: usize) -> Vec<usize> {
         load[least] += costs[unit];
     }
     shard
+}
+
+/// The expected cost of a unit of `category`: its canonical's vertices (a registration's
+/// cost follows them), from what `check-dataset` read.
+pub fn unit_cost(category: &Category) -> Result<f64> {
+    category
+        .meshes
+        .iter()
+        .find(|(stats, _)| stats.role == Role::Canonical)
+        .map(|(_, mesh)| mesh.vertex_count() as f64)
+        .with_context(|| format!("{}: no canonical.obj", category.name))
+}
+
+/// An error, before any work, for a --spaces that is there but is not a folder.
+pub fn check_spaces(spaces: Option<&Path>) -> Result<()> {
+    match spaces {
+        Some(dir) if dir.exists() && !dir.is_dir() => bail!(
+            "--spaces {} is not a folder: give a new one, or one that holds CATEGORY.npz files",
+            dir.display()
+        ),
+        _ => Ok(()),
+    }
+}
+
+/// Keeps the units of `shard` (all without one), given each unit's expected cost.
+pub fn keep_own(units: &mut Vec<Unit>, costs: &[f64], shard: Option<Shard>) {
+    if let Some(shard) = shard {
+        let assigned = assign(costs, shard.count);
+        let mut mine = assigned.iter().map(|&s| s == shard.index);
+        units.retain(|_| mine.next().expect("one shard per unit"));
+    }
+}
+
+/// The output folder of a command that merges: the first folder of `merge`, else `out`
+/// (clap requires one of them).
+pub fn out_folder<'a>(merge: &'a Option<Vec<PathBuf>>, out: &'a Option<PathBuf>) -> &'a Path {
+    match (merge, out) {
+        (Some(merge), _) => &merge[0],
+        (None, Some(out)) => out,
+        (None, None) => unreachable!("clap requires --out or --merge"),
+    }
+}
+
+/// Merges the shards of a `command` run in `dirs` and writes its tables into `out`;
+/// `settings_of` reads the run's settings back from its command line (the command, its
+/// flags and `--out`). An error when a category failed in a shard, after the others' rows
+/// are written.
+pub fn write_merged(
+    command: &str,
+    out: &Path,
+    dirs: &[PathBuf],
+    settings_of: impl FnOnce(Vec<String>) -> Result<EvalSettings>,
+) -> Result<()> {
+    let merged = merge(command, dirs)?;
+    let line: Vec<String> = std::iter::once(command.to_string())
+        .chain(merged.run.iter().cloned())
+        .chain(["--out".to_string(), out.display().to_string()])
+        .collect();
+    let settings = settings_of(line).context("the shards' flags")?;
+    if !merged.rows.is_empty() {
+        crate::eval_cmd::write_reports(out, &merged.rows, &settings, &merged.device)?;
+        print!("{}", std::fs::read_to_string(out.join("table.md"))?);
+        println!(
+            "merged {} shards: wrote {}/table.md, table.csv, table.json, trials.csv, speed_vs_error.png",
+            dirs.len(),
+            out.display()
+        );
+    }
+    if !merged.failures.is_empty() {
+        bail!(
+            "{} categories failed in the shards:\n  {}",
+            merged.failures.len(),
+            merged.failures.join("\n  ")
+        );
+    }
+    Ok(())
 }
 
 /// A unit of work: test instance `instance` of category `category` (indices in the

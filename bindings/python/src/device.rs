@@ -432,7 +432,14 @@ impl Device {
             .map(|k| {
                 let part = |all: &[f32]| all[k * pixels..(k + 1) * pixels].to_vec();
                 let depth = depths.as_deref().map(part);
-                Looks::from_images(part(&masks), depth, None, None, &options)
+                Looks::assemble(
+                    part(&masks),
+                    depth,
+                    None,
+                    None,
+                    options.depth,
+                    options.shading,
+                )
             })
             .collect::<PyResult<_>>()?;
         let space = space.get().inner.clone();
@@ -658,17 +665,8 @@ impl Looks {
         Ok(first)
     }
 
-    /// One observation of `register_batch`.
-    fn from_images(
-        mask: Vec<f32>,
-        depth: Option<Vec<f32>>,
-        shaded: Option<Vec<f32>>,
-        ignore: Option<Vec<f32>>,
-        options: &Options,
-    ) -> PyResult<Self> {
-        Self::assemble(mask, depth, shaded, ignore, options.depth, options.shading)
-    }
-
+    /// The observation of images in the engine's layout: the ignore mask marks pixels
+    /// unknown, the shading is background off the mask.
     fn assemble(
         mut mask: Vec<f32>,
         depth: Option<Vec<f32>>,

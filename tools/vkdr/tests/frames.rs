@@ -6,24 +6,11 @@
 //! errors against the rendered truth; bad BOP input is refused with the file and key
 //! named, and nothing in --out is touched. Two shards of a run merge into its tables.
 
+mod common;
+
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
-fn vkdr(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_vkdr"))
-        .args(args)
-        .output()
-        .unwrap()
-}
-
-fn ok(args: &[&str]) {
-    let out = vkdr(args);
-    assert!(
-        out.status.success(),
-        "vkdr {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-}
+use common::{ok, s, table_without_times, vkdr};
 
 /// A fresh folder for one test, with the generated dataset.
 fn folder(name: &str) -> PathBuf {
@@ -32,10 +19,6 @@ fn folder(name: &str) -> PathBuf {
     std::fs::create_dir_all(&dir).unwrap();
     vkdr_app::dataset::generate(&dir.join("data"), 0, 10, 2, |_, _, _| {}).unwrap();
     dir
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
 }
 
 /// The rows of an eval-frames run's table.json.
@@ -107,19 +90,7 @@ fn occluded_noisy_frames_on_a_table() {
         s(&shards[0]),
         s(&shards[1]),
     ]);
-    let without_times = |rows: Vec<serde_json::Value>| -> Vec<serde_json::Value> {
-        rows.into_iter()
-            .map(|mut row| {
-                let map = row.as_object_mut().unwrap();
-                map.retain(|k, _| k != "ms" && k != "noise_ms");
-                row
-            })
-            .collect()
-    };
-    assert_eq!(
-        without_times(self::rows(&merged)),
-        without_times(rows.clone())
-    );
+    assert_eq!(table_without_times(&merged), table_without_times(&out));
     assert_eq!(
         std::fs::read(merged.join("trials.csv")).unwrap(),
         std::fs::read(out.join("trials.csv")).unwrap()

@@ -2,53 +2,12 @@
 //! bytes of the unsharded run's (the wall times aside), and the merge refuses a missing
 //! shard, a shard given twice and a shard of another run.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-fn vkdr(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_vkdr"))
-        .args(args)
-        .output()
-        .unwrap()
-}
-
-fn ok(args: &[&str]) {
-    let out = vkdr(args);
-    assert!(
-        out.status.success(),
-        "vkdr {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-}
-
-/// The error of a command that must fail.
-fn fails(args: &[&str]) -> String {
-    let out = vkdr(args);
-    assert!(!out.status.success(), "vkdr {args:?} succeeded");
-    String::from_utf8_lossy(&out.stderr).into_owned()
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-/// table.json without its wall times (`ms`, `noise_ms`).
-fn table_without_times(out: &Path) -> serde_json::Value {
-    fn strip(v: &mut serde_json::Value) {
-        match v {
-            serde_json::Value::Object(map) => {
-                map.retain(|k, _| k != "ms" && !k.ends_with("_ms"));
-                map.values_mut().for_each(strip);
-            }
-            serde_json::Value::Array(items) => items.iter_mut().for_each(strip),
-            _ => {}
-        }
-    }
-    let mut table: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("table.json")).unwrap()).unwrap();
-    strip(&mut table);
-    table
-}
+use common::{fails, ok, s, table_without_times};
 
 #[test]
 fn merged_shards_are_the_unsharded_tables() {
@@ -162,4 +121,9 @@ fn merged_shards_are_the_unsharded_tables() {
     }
     let said = fails(&[&run[..], &["--shard", "3/3", "--out", s(&dir.join("bad"))]].concat());
     assert!(said.contains("--shard must be K/N"), "{said}");
+    let mut not_a_folder = run.to_vec();
+    let spaces_file = dir.join("full").join("table.json");
+    *not_a_folder.last_mut().unwrap() = s(&spaces_file);
+    let said = fails(&[&not_a_folder[..], &["--out", s(&dir.join("bad"))]].concat());
+    assert!(said.contains("is not a folder"), "{said}");
 }
