@@ -406,7 +406,7 @@ fn lambert_shading_in_two_views() {
 }
 
 /// Adds an observed depth to every view: a tilted plane through the sphere, so that the
-/// residuals cover both sides of the Huber cost's bend (1 cm), with every 7th pixel
+/// residuals cover both sides of the depth cost's bend (its inflection at 1 cm / sqrt(3)), with every 7th pixel
 /// unmeasured (0) and a few measured outside the rendered silhouette.
 fn with_depth(mut case: Case) -> Case {
     let (w, h) = (case.views[0].camera.width, case.views[0].camera.height);

@@ -87,7 +87,7 @@ layout(push_constant, std430) uniform Constants {
     uint height;
     int stats_shift;
     uint stage;     // bounds.comp's stage (antialias.comp and classify.comp: STAGE)
-    float depth_scale;   // metres: residuals up to it cost quadratically (Huber)
+    float depth_scale;   // metres: the depth cost's scale (loss.glsl depth_term)
     float depth_weight;
     float occlusion;     // metres: a covered background pixel measured nearer is occluded (loss.glsl)
 } pc;

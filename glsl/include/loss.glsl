@@ -32,7 +32,7 @@ uint mse_channels() { return max(CHANNELS, 1u) - DEPTH; }
 // channel 0 (the mask, or the shading, 0 off the mask) shows the object: elsewhere the
 // measurement is of another surface (the table behind, an occluder in front), whose
 // distance from the rendered surface would make every pixel the silhouette sweeps over
-// jump by its whole Huber cost; the mask term places the silhouette.
+// jump by its whole cost; the mask term places the silhouette.
 bool depth_compared(uint index, vec4 a, out float residual) {
     residual = 0.0;
     if (DEPTH == 0u || ids[index] == 0u) return false;
@@ -43,15 +43,20 @@ bool depth_compared(uint index, vec4 a, out float residual) {
     return o > 0.0 && observed[index * CHANNELS] > 0.0;
 }
 
-// The depth term of one pixel, Huber in units of pc.depth_scale (s): (r / s)^2 within s,
-// 2 |r| / s - 1 beyond (continuous with its derivative), times the weight / pixels.
+// The depth term of one pixel, bounded (Geman-McClure) in units of pc.depth_scale (s):
+// u^2 / (1 + u^2) with u = r / s, about u^2 for small residuals, half a wrong mask pixel
+// at s and never more than one, so that a depth edge inside the silhouette (an open
+// container's rim before its inside) or a sensor's outlier does not outweigh the rest;
+// times the weight / pixels.
 float depth_term(float r, float n) {
-    float u = abs(r) / pc.depth_scale;
-    return pc.depth_weight * (u <= 1.0 ? u * u : 2.0 * u - 1.0) / n;
+    float u = r / pc.depth_scale;
+    return pc.depth_weight * (u * u / (1.0 + u * u)) / n;
 }
 
 float depth_term_gradient(float r, float n) {
-    return pc.depth_weight * 2.0 * clamp(r / pc.depth_scale, -1.0, 1.0) / (pc.depth_scale * n);
+    float u = r / pc.depth_scale;
+    float q = 1.0 + u * u;
+    return pc.depth_weight * 2.0 * u / (q * q * pc.depth_scale * n);
 }
 
 // Pixels that count for nothing, neither mask (or shading) nor depth:

@@ -221,13 +221,15 @@ impl Shading {
 }
 
 /// How a depth observation is compared (see [`ObservedDepth`]): per pixel where the
-/// rendering covers the pixel centre and the observation measured depth (> 0), a Huber
-/// cost of the residual r = rendered - observed in units of `scale`, (r / s)^2 within s
-/// and 2 |r| / s - 1 beyond (so a sensor's outliers and mixed pixels cost linearly),
-/// times `weight`, averaged over the image's pixels as the mask term is.
+/// rendering covers the pixel centre and the observation measured depth (> 0), a bounded
+/// (Geman-McClure) cost of the residual r = rendered - observed in units of `scale`,
+/// u^2 / (1 + u^2) with u = r / s: about u^2 for small residuals and never more than 1,
+/// so that a depth edge inside the silhouette (an open container's rim before its
+/// inside), a mixed pixel or a sensor's outlier costs at most a wrong mask pixel; times
+/// `weight`, averaged over the image's pixels as the mask term is.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct DepthLoss {
-    /// Metres: residuals up to this cost quadratically.
+    /// Metres: the cost's scale (a residual of it costs half its most).
     pub scale: f64,
     /// Weight against the mask (or shading) term: at 1, a pixel whose depth is off by
     /// `scale` costs as much as a pixel of mask that is wrong.

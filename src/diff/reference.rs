@@ -43,8 +43,8 @@ pub struct Problem<'a> {
 /// The depth term of one pixel with residual r (as `depth_term` in
 /// `glsl/include/diff_pass.glsl`), over `pixels` pixels.
 pub fn depth_term(loss: &DepthLoss, r: f64, pixels: f64) -> f64 {
-    let u = r.clamp(-MAX_DEPTH_RESIDUAL, MAX_DEPTH_RESIDUAL).abs() / loss.scale;
-    loss.weight * if u <= 1.0 { u * u } else { 2.0 * u - 1.0 } / pixels
+    let u = r.clamp(-MAX_DEPTH_RESIDUAL, MAX_DEPTH_RESIDUAL) / loss.scale;
+    loss.weight * u * u / (1.0 + u * u) / pixels
 }
 
 /// A pose as the model takes it: camera = rotation * object + translation.

@@ -86,9 +86,10 @@ impl ViewArgs {
 
 #[derive(clap::Args)]
 pub struct DepthLossArgs {
-    /// Depth residuals up to this (metres) cost quadratically, beyond linearly (Huber).
+    /// Metres: the depth cost's scale. A pixel's depth residual r costs (r/s)^2 / (1 +
+    /// (r/s)^2): about (r/s)^2 when small, half a wrong mask pixel at s, never more than one.
     #[arg(long, allow_negative_numbers = true, default_value_t = vkdr::diff::DepthLoss::default().scale)]
-    pub depth_huber: f64,
+    pub depth_sigma: f64,
     /// Weight of the depth term against the mask (or shading) term.
     #[arg(long, allow_negative_numbers = true, default_value_t = vkdr::diff::DepthLoss::default().weight)]
     pub depth_weight: f64,
@@ -102,7 +103,7 @@ pub struct DepthLossArgs {
 impl DepthLossArgs {
     pub fn loss(&self) -> Result<vkdr::diff::DepthLoss> {
         let loss = vkdr::diff::DepthLoss {
-            scale: self.depth_huber,
+            scale: self.depth_sigma,
             weight: self.depth_weight,
             occlusion: self.occlusion,
         };

@@ -50,7 +50,7 @@ pub struct Args {
     /// Observe and compare grey Lambert shading too (the default light, at the camera).
     #[arg(long)]
     pub shading: bool,
-    /// Observe the test instance's depth too (noise-free; the default Huber loss).
+    /// Observe the test instance's depth too (noise-free; the default depth cost).
     #[arg(long)]
     pub depth: bool,
     /// Cameras, 1 to 6: the others at the same elevation, evenly spaced in azimuth, their

@@ -45,8 +45,8 @@ pub struct Args {
     #[arg(long, requires = "observed")]
     observed_depth: Option<PathBuf>,
     /// Millimetres per unit of a depth PNG, as BOP's `depth_scale` (a PNG value times it is
-    /// millimetres; 0.1 for sensors that store tenths of a millimetre). The Huber scale of
-    /// the depth term is --depth-huber.
+    /// millimetres; 0.1 for sensors that store tenths of a millimetre). The depth cost's scale
+    /// is --depth-sigma.
     #[arg(long, requires = "observed_depth")]
     depth_scale: Option<f64>,
     /// With --observed: a PNG of the pixels whose content is unknown (nonzero: hidden by
@@ -336,7 +336,7 @@ fn load_depth(args: &Args, path: &Path, w: u32, h: u32) -> Result<Vec<f32>> {
     let scale = match (args.depth_scale, is_png) {
         (Some(_), false) => bail!(
             "--depth-scale (millimetres per unit of a depth PNG) does not apply to {}, which \
-             holds metres; the Huber scale of the depth term is --depth-huber",
+             holds metres; the depth cost's scale is --depth-sigma",
             path.display()
         ),
         (scale, _) => scale.unwrap_or(1.0),

@@ -261,12 +261,12 @@ impl Device {
     /// dL/dpose (6, float64) for the pose's own numbers (translation, axis-angle).
     ///
     /// `loss`: "mse" (antialiased coverage), "iou" or "distance". `depth` (H, W, metres, 0 =
-    /// not measured) adds a Huber depth term (`depth_huber` m, `depth_weight`; pixels
+    /// not measured) adds a bounded depth term (`depth_sigma` m, `depth_weight`; pixels
     /// measured more than `occlusion` m in front of the surface count for nothing).
     /// `shading` (H, W, grey) compares Lambert shading (`light` towards the light, camera
     /// frame; `ambient`) instead of the mask. `ignore` (H, W, nonzero) marks pixels unknown
     /// where the mask does not show the object (BOP's whole-object mask works as it is).
-    #[pyo3(signature = (vertices, faces, K, size, pose, mask, loss="mse", depth=None, shading=None, ignore=None, depth_huber=None, depth_weight=None, occlusion=None, light=None, ambient=None))]
+    #[pyo3(signature = (vertices, faces, K, size, pose, mask, loss="mse", depth=None, shading=None, ignore=None, depth_sigma=None, depth_weight=None, occlusion=None, light=None, ambient=None))]
     #[allow(non_snake_case, clippy::too_many_arguments)]
     fn loss_and_grad<'py>(
         &self,
@@ -281,7 +281,7 @@ impl Device {
         depth: Option<&Bound<'py, PyAny>>,
         shading: Option<&Bound<'py, PyAny>>,
         ignore: Option<&Bound<'py, PyAny>>,
-        depth_huber: Option<f64>,
+        depth_sigma: Option<f64>,
         depth_weight: Option<f64>,
         occlusion: Option<f64>,
         light: Option<[f64; 3]>,
@@ -300,7 +300,7 @@ impl Device {
             wh,
             1,
             DepthOptions {
-                huber: depth_huber,
+                sigma: depth_sigma,
                 weight: depth_weight,
                 occlusion,
             },
@@ -351,7 +351,7 @@ impl Device {
     /// weight), `starts` (5 with the pose free, else 1: the pose turned about `up` by
     /// +-15, +-30 degrees, aligned, the best fitted), `up` ((0, 1, 0), the object's up
     /// axis), `gravity` (None, (x, y, z) up in the camera frame, or "from-depth"),
-    /// `tilt_tolerance` (1 degree), `depth_huber` (0.01 m), `depth_weight` (1),
+    /// `tilt_tolerance` (1 degree), `depth_sigma` (0.01 m), `depth_weight` (1),
     /// `occlusion` (0.02 m), `light` ((0, 0, -1)), `ambient` (0.2). `progress(iterations
     /// done, iterations)` is called after each chunk of iterations where given.
     #[pyo3(signature = (space, mask, K, size, pose, *, depth=None, shading=None, ignore=None, views=None, progress=None, **options))]
@@ -551,7 +551,7 @@ fn further_views(list: &Bound<'_, PyList>) -> PyResult<Vec<FurtherView>> {
 /// How the depth is compared, where given (None: the engine's default).
 #[derive(Clone, Copy)]
 struct DepthOptions {
-    huber: Option<f64>,
+    sigma: Option<f64>,
     weight: Option<f64>,
     occlusion: Option<f64>,
 }
@@ -560,12 +560,12 @@ impl DepthOptions {
     fn loss(&self) -> PyResult<DepthLoss> {
         let default = DepthLoss::default();
         let loss = DepthLoss {
-            scale: self.huber.unwrap_or(default.scale),
+            scale: self.sigma.unwrap_or(default.scale),
             weight: self.weight.unwrap_or(default.weight),
             occlusion: self.occlusion.unwrap_or(default.occlusion),
         };
         loss.validate()
-            .map_err(|e| bad("depth_huber, depth_weight or occlusion", e))?;
+            .map_err(|e| bad("depth_sigma, depth_weight or occlusion", e))?;
         Ok(loss)
     }
 }
@@ -753,7 +753,7 @@ impl Options {
             gravity: None,
             tilt_tolerance: 1.0,
             depth: DepthOptions {
-                huber: None,
+                sigma: None,
                 weight: None,
                 occlusion: None,
             },
@@ -807,7 +807,7 @@ impl Options {
                     }
                 }
                 "tilt_tolerance" => options.tilt_tolerance = get!("degrees"),
-                "depth_huber" => options.depth.huber = get!("metres"),
+                "depth_sigma" => options.depth.sigma = get!("metres"),
                 "depth_weight" => options.depth.weight = get!("a weight"),
                 "occlusion" => options.depth.occlusion = get!("metres"),
                 "light" => options.shading.0 = get!("(x, y, z)"),

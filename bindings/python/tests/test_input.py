@@ -47,13 +47,13 @@ def call(device, scene, **change):
         ("size", lambda v, f, m: (-96, 80), "size: expected"),
         ("loss", lambda v, f, m: "l2", "loss: .*unknown loss 'l2'"),
         ("depth", lambda v, f, m: np.zeros((3, 3), np.float32), r"depth: expected shape \(80, 96\)"),
-        ("depth_huber", lambda v, f, m: -1.0, "depth_huber, depth_weight or occlusion"),
+        ("depth_sigma", lambda v, f, m: -1.0, "depth_sigma, depth_weight or occlusion"),
     ],
 )
 def test_bad_input_raises_value_error_naming_the_argument(device, scene, argument, value, message):
     v, f, m = scene
     change = {argument: value(v, f, m)}
-    if argument == "depth_huber":
+    if argument == "depth_sigma":
         change["depth"] = np.zeros_like(m)
     with pytest.raises(ValueError, match=message):
         call(device, scene, **change)

@@ -401,7 +401,7 @@ fn bad_input_exits_non_zero_naming_the_problem_and_keeps_existing_files() {
             "--up must be a nonzero direction",
         ),
         case(
-            &register(&["--depth", "--depth-huber", "0"]),
+            &register(&["--depth", "--depth-sigma", "0"]),
             "depth loss scale",
         ),
         case(

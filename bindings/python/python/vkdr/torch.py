@@ -47,7 +47,7 @@ class SilhouetteLoss(torch.autograd.Function):
 def silhouette_loss(vertices, pose, faces, K, size, mask, loss="mse", depth=None, device=None, **options):
     """The loss of the mesh's rendering at `pose` against `mask` (and `depth`, where given),
     with vkdr's exact gradients for `vertices` and `pose`. `options` are the further keyword
-    arguments of `vkdr.Device.loss_and_grad` (shading, ignore, depth_huber, occlusion, ...).
+    arguments of `vkdr.Device.loss_and_grad` (shading, ignore, depth_sigma, occlusion, ...).
     """
     options = {key: _numpy(value) for key, value in options.items()}
     options["loss"] = loss
