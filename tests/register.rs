@@ -696,3 +696,35 @@ fn scale_is_found_with_depth() {
     assert_eq!(plain.scale, 1.0);
     assert!(e_scaled < 0.5 * e_plain, "{e_scaled} vs {e_plain}");
 }
+
+/// With depth and the pose free, a start 6 cm off in depth (and 1 cm in x) reaches the
+/// measured depth: the bounded depth cost alone pulls little from there, and the stage
+/// before the joint fit (`register::REACH`) brings it in. Its iterations are counted.
+#[test]
+fn a_start_far_off_in_depth_reaches_the_measured_depth() {
+    let ctx = common::context();
+    let space = space(&ctx);
+    let truth = space.vertices(&space.training_codes[2]).unwrap();
+    let pose = Pose::new([0.0, 0.0, 0.6], [2.9, 0.3, 0.1]).unwrap();
+    let (mask, depth) = observe_with_depth(&ctx, &space, &truth, view(pose));
+    let registrar = Registrar::new(&ctx).unwrap();
+    let params = RegisterParams {
+        depth: Some(vkdr::diff::DepthLoss::default()),
+        optimize_z: true,
+        ..RegisterParams::free_pose(128 * 128)
+    };
+    for dz in [0.06, -0.06] {
+        let start = Pose::new([0.01, 0.0, 0.6 + dz], [2.9, 0.3, 0.1]).unwrap();
+        let job = Job {
+            depth: Some(&depth),
+            ..Job::new(&space, &mask, view(start))
+        };
+        let result = registrar.register(&ctx, job, &params, |_, _| {}).unwrap();
+        let z = result.pose.translation.z - pose.translation.z;
+        eprintln!("start {dz:+} m: z off by {:.2} mm", 1e3 * z);
+        assert!(z.abs() < 2e-3, "start {dz:+} m off in depth ends {z} m off");
+        assert!(result.iterations > params.align + vkdr::register::REACH_ITERATIONS);
+        assert!(result.iterations <= params.total_iterations());
+    }
+    common::assert_no_validation_errors(&ctx);
+}

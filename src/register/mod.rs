@@ -156,9 +156,14 @@ impl RegisterParams {
         Ok(())
     }
 
-    /// Iterations at most, the pose alignment's included.
+    /// Iterations at most, the pose alignment's included (and with depth and z free, the
+    /// stage that brings the aligned pose to the measured depth).
     pub fn total_iterations(&self) -> usize {
-        self.iterations + if self.pose_every > 0 { self.align } else { 0 }
+        let aligned = self.pose_every > 0 && self.align > 0;
+        let reach = aligned && self.depth.is_some() && self.optimize_z;
+        self.iterations
+            + if aligned { self.align } else { 0 }
+            + if reach { REACH_ITERATIONS } else { 0 }
     }
 }
 
@@ -177,9 +182,10 @@ impl RegisterParams {
 
     /// The schedule `vkdr register --optimize-pose` and `vkdr eval` use with the pose
     /// free (chosen on a validation dataset, another seed than the reported one): the pose
-    /// aligned alone for 15 iterations with the distance loss, then 60 of pose and shape
-    /// together with BFGS. The z translation stays fixed: set `optimize_z` where depth or
-    /// a further view observes it.
+    /// aligned alone for 15 iterations with the distance loss (with depth and `optimize_z`
+    /// then [`REACH_ITERATIONS`] with mask and depth at a wide scale, [`REACH`]), then 60 of
+    /// pose and shape together with BFGS. The z translation stays fixed: set `optimize_z`
+    /// where depth or a further view observes it.
     pub fn free_pose(pixels: usize) -> Self {
         Self {
             iterations: 60,
@@ -581,7 +587,8 @@ impl Registrar {
             .collect();
         let jobs = &levelled[..];
         if params.pose_every == 0 || params.align == 0 {
-            return self.run(ctx, jobs, params, false, started, 0, &mut on_chunk);
+            let runs = self.run(ctx, jobs, params, false, None, started, 0, &mut on_chunk)?;
+            return Ok(runs.into_iter().map(|s| s.result).collect());
         }
         let align = RegisterParams {
             iterations: params.align,
@@ -589,11 +596,15 @@ impl Registrar {
             shading: None,
             depth: None,
             // One silhouette of the mean shape tells its distance badly (a larger instance
-            // looks nearer): the depth of the joint stage, when given, tells it well.
+            // looks nearer): the depth, when given, tells it well (the stage below).
             optimize_z: params.optimize_z && params.depth.is_none(),
             ..*params
         };
-        let mut aligned = self.run(ctx, jobs, &align, true, started, 0, &mut on_chunk)?;
+        let mut aligned: Vec<Registration> = self
+            .run(ctx, jobs, &align, true, None, started, 0, &mut on_chunk)?
+            .into_iter()
+            .map(|s| s.result)
+            .collect();
         let mut jobs = jobs;
         let mut alignment_iterations = 0;
         if best_aligned {
@@ -605,29 +616,62 @@ impl Registrar {
             jobs = &jobs[best..best + 1];
             alignment_iterations -= aligned[0].iterations;
         }
-        let jobs: Vec<Job> = jobs
-            .iter()
-            .zip(&aligned)
-            .map(|(job, a)| Job {
-                view: View {
-                    pose: a.pose,
-                    ..job.view
-                },
-                ..*job
-            })
-            .collect();
+        let mut jobs = at_poses(jobs, &aligned);
+        // The alignment leaves z where the start put it when depth is observed, and the
+        // joint fit's bounded depth cost pulls little from centimetres off (at 5 sigma a
+        // pixel's gradient is a fortieth of its largest): the pose first moves by the
+        // mask and the depth with a scale REACH times as wide, and the joint fit goes on
+        // from there. With the scale free the shape moves too: the mean shape's size is
+        // not the instance's, and the pose alone would take the difference for distance.
+        let mut done = params.align;
+        let mut codes = None;
+        if let Some(depth) = params.depth.filter(|_| params.optimize_z) {
+            let reach = RegisterParams {
+                iterations: REACH_ITERATIONS,
+                shading: None,
+                depth: Some(DepthLoss {
+                    scale: depth.scale * REACH,
+                    ..depth
+                }),
+                ..*params
+            };
+            let pose_only = !params.optimize_scale;
+            let reached = self.run(
+                ctx,
+                &jobs,
+                &reach,
+                pose_only,
+                None,
+                started,
+                done,
+                &mut on_chunk,
+            )?;
+            done += REACH_ITERATIONS;
+            let (reached, coordinates): (Vec<Registration>, Vec<Vec<f32>>) = reached
+                .into_iter()
+                .map(|s| (s.result, s.coordinates))
+                .unzip();
+            jobs = at_poses(&jobs, &reached);
+            codes = Some(coordinates);
+            for (a, r) in aligned.iter_mut().zip(reached) {
+                a.losses.extend(r.losses);
+                a.codes.extend(r.codes);
+                a.iterations += r.iterations;
+            }
+        }
         let refined = self.run(
             ctx,
             &jobs,
             params,
             false,
+            codes.as_deref(),
             started,
-            params.align,
+            done,
             &mut on_chunk,
         )?;
         Ok(aligned
             .into_iter()
-            .zip(refined)
+            .zip(refined.into_iter().map(|s| s.result))
             .map(|(a, mut r)| {
                 r.losses.splice(0..0, a.losses);
                 r.codes.splice(0..0, a.codes);
@@ -637,8 +681,9 @@ impl Registrar {
             .collect())
     }
 
-    /// One stage of `register_batch` (`pose_only`: the latent code stays at the mean);
-    /// `on_chunk` counts iterations from `first`.
+    /// One stage of `register_batch` (`pose_only`: the latent code stays where it
+    /// starts), each job's code starting at `codes` (device coordinates, as a stage
+    /// returns them) or the mean; `on_chunk` counts iterations from `first`.
     #[allow(clippy::too_many_arguments)]
     fn run(
         &self,
@@ -646,16 +691,18 @@ impl Registrar {
         jobs: &[Job],
         params: &RegisterParams,
         pose_only: bool,
+        codes: Option<&[Vec<f32>]>,
         started: Instant,
         first: usize,
         on_chunk: &mut impl FnMut(usize, f64),
-    ) -> Result<Vec<Registration>> {
+    ) -> Result<Vec<Staged>> {
         if jobs.is_empty() {
             return Ok(Vec::new());
         }
         let mut tasks = jobs
             .iter()
-            .map(|job| Task::new(ctx, job, params))
+            .enumerate()
+            .map(|(i, job)| Task::new(ctx, job, params, codes.map(|c| &c[i][..])))
             .collect::<Result<Vec<_>>>()?;
         let mut rec = Recorder::new(ctx)?;
         for task in &tasks {
@@ -701,7 +748,7 @@ impl Registrar {
             let most = tasks.iter().map(|t| t.done).max().unwrap_or(0);
             on_chunk(first + most, latest);
         }
-        tasks.iter().map(|task| task.result(params)).collect()
+        tasks.iter().map(|task| task.staged(params)).collect()
     }
 
     /// GPU milliseconds of each pass of one iteration, for `repeats` iterations of `job`
@@ -713,7 +760,7 @@ impl Registrar {
         params: &RegisterParams,
         repeats: usize,
     ) -> Result<Vec<PassTimes>> {
-        let task = Task::new(ctx, job, params)?;
+        let task = Task::new(ctx, job, params, None)?;
         let mut rec = Recorder::new(ctx)?;
         task.scene.record_prepare(&self.renderer, &mut rec)?;
         ctx.submit_and_wait(rec)?;
@@ -962,7 +1009,13 @@ struct Task<'a> {
 }
 
 impl<'a> Task<'a> {
-    fn new(ctx: &Context, job: &Job<'a>, params: &RegisterParams) -> Result<Self> {
+    /// `code`: where the code starts, in the device's coordinates (None: the mean).
+    fn new(
+        ctx: &Context,
+        job: &Job<'a>,
+        params: &RegisterParams,
+        code: Option<&[f32]>,
+    ) -> Result<Self> {
         let space = job.space;
         let k = space.dims();
         let dims = k + params.optimize_scale as usize;
@@ -1045,7 +1098,11 @@ impl<'a> Task<'a> {
         }
         let layout = StateLayout::new(dims, params.iterations);
         let prior = optimizer::prior_matrix(space, &to_code, dims);
-        let state = layout.initial(&prior, job.gravity.as_ref());
+        let mut state = layout.initial(&prior, job.gravity.as_ref());
+        if let Some(code) = code {
+            let at = layout.latent as usize;
+            state[at..at + dims].copy_from_slice(&code[..dims]);
+        }
         Ok(Self {
             space,
             scene,
@@ -1111,7 +1168,8 @@ impl<'a> Task<'a> {
         (code, scale)
     }
 
-    fn result(&self, params: &RegisterParams) -> Result<Registration> {
+    /// The result, and the code in the device's coordinates (where a next stage starts).
+    fn staged(&self, params: &RegisterParams) -> Result<Staged> {
         let (k, dims) = (self.k, self.dims);
         let layout = StateLayout::new(dims, params.iterations);
         let at = |offset: u32| offset as usize;
@@ -1157,19 +1215,51 @@ impl<'a> Task<'a> {
             .into_iter()
             .map(|v| v * scale)
             .collect();
-        Ok(Registration {
-            vertices,
-            code,
-            pose,
-            losses,
-            codes,
-            iterations: self.done,
-            milliseconds: self.milliseconds,
-            on_bound,
-            scale,
-            loss,
+        Ok(Staged {
+            result: Registration {
+                vertices,
+                code,
+                pose,
+                losses,
+                codes,
+                iterations: self.done,
+                milliseconds: self.milliseconds,
+                on_bound,
+                scale,
+                loss,
+            },
+            coordinates: coordinates.to_vec(),
         })
     }
+}
+
+/// What one stage of a registration (`Registrar::run`) returns.
+struct Staged {
+    result: Registration,
+    /// The code in the device's coordinates, where a next stage starts it.
+    coordinates: Vec<f32>,
+}
+
+/// With depth and z free, after the alignment: the pose (with `optimize_scale` the shape
+/// too) moves by mask and depth with the depth cost's scale REACH times the joint fit's,
+/// for REACH_ITERATIONS iterations, so that a start centimetres off in depth reaches the
+/// measured depth before the joint fit (`Registrar::register_batch`).
+pub const REACH: f64 = 10.0;
+/// See [`REACH`].
+pub const REACH_ITERATIONS: usize = 10;
+
+/// `jobs` at the poses that `results` reached.
+fn at_poses<'a>(jobs: &[Job<'a>], results: &[Registration]) -> Vec<Job<'a>> {
+    jobs.iter()
+        .zip(results)
+        .map(|(job, r)| Job {
+            view: View {
+                pose: r.pose,
+                ..job.view
+            },
+            ..*job
+        })
+        .collect()
 }
 
 /// The first view's pose as the device holds it.

@@ -1167,8 +1167,6 @@ pub fn evaluate_instance(
     let mut from_truth = Vec::new();
     let (mut iterations, mut ms, mut noise_iterations, mut noise_ms) =
         (vec![], vec![], vec![], vec![]);
-    let mut curve_known = vec![0.0; settings.known_pose.total_iterations()];
-    let mut curve_noise = vec![0.0; settings.pose_noise.total_iterations()];
     let mut ms_per_iteration = Vec::new();
     // The space optimum's starts besides the oracle's code: the mean shape and the best
     // known-pose registration's code (the oracle can be poor, and the least error the
@@ -1187,6 +1185,8 @@ pub fn evaluate_instance(
         optimize_z: settings.pose_noise.optimize_z || observes_z,
         ..settings.pose_noise
     };
+    let mut curve_known = vec![0.0; known_pose.total_iterations()];
+    let mut curve_noise = vec![0.0; pose_noise.total_iterations()];
     for trial in 0..settings.trials {
         progress(trial, settings.trials);
         let TrialScene {

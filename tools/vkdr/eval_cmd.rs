@@ -1017,13 +1017,23 @@ pub fn write_reports(
          as seen, both ways: the mean of that error and the one from points sampled on the registered surface to the test surface \
          (which also sees parts the registration has and the test instance has not), its ratio to the oracle's error both ways. \
          Registration: known pose, {} for {} iterations ({} loss); pose noise, the pose aligned alone for {} iterations ({} loss), \
-         then pose and shape by {} for {} ({} loss).{}{}\n\n\
+         {}then pose and shape by {} for {} ({} loss).{}{}\n\n\
          | category | instance | oracle | space optimum | known pose | ratio | / opt. | pose noise | ratio | / opt. | worst noise trial | noise, placed | noise, as seen | chamfer oracle / known / noise | iterations known / noise | ms known / noise |{}\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|{}\n",
         settings.observation(),
         c.fx, c.fy, c.cx, c.cy, c.width, c.height, settings.distance,
         settings.elevation.0.to_degrees(), settings.elevation.1.to_degrees(), settings.trials, settings.seed, settings.dims,
         100.0 * settings.translation_noise, settings.rotation_noise.to_degrees(), eval::SAMPLE_POINTS,
         known.optimizer.name(), known.iterations, known.loss.name(), noisy.align, noisy.align_loss.name(),
+        if settings.depth.is_some() && !settings.fix_z {
+            format!(
+                "then {} for {} with the mask and the depth at {} times the depth scale, ",
+                if noisy.optimize_scale { "with the shape" } else { "alone" },
+                vkdr::register::REACH_ITERATIONS,
+                vkdr::register::REACH
+            )
+        } else {
+            String::new()
+        },
         noisy.optimizer.name(), noisy.iterations,
         if noisy.code_prior > 0.0 {
             format!("{} loss, plus a code prior of weight {:.3e} in training SD, both conditions", noisy.loss.name(), noisy.code_prior)

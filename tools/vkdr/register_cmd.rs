@@ -68,8 +68,9 @@ pub struct Args {
     #[command(flatten)]
     view: ViewArgs,
     /// Optimise the pose too (the schedule of `vkdr eval`: the pose aligned alone for 15
-    /// iterations with the distance loss, then pose and shape; z too where depth or a
-    /// further view observes it).
+    /// iterations with the distance loss, with depth then 10 with the mask and the depth
+    /// at a wide scale, then pose and shape; z too where depth or a further view observes
+    /// it).
     #[arg(long)]
     optimize_pose: bool,
     /// Iterations (after the alignment; default: that of `vkdr eval`'s condition, 30 with
