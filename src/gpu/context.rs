@@ -153,6 +153,7 @@ impl Context {
     /// loader, [`Error::NoDevice`] when no device matches, and [`Error::MissingFeatures`] when
     /// the matching devices lack a feature the engine needs.
     pub fn with_options(options: ContextOptions) -> Result<Self> {
+        let _serial = lifecycle();
         // SAFETY: loading the Vulkan loader library; its entry points are trusted.
         let entry = unsafe { ash::Entry::load() }.map_err(|e| {
             Error::Loader(format!(
@@ -252,6 +253,7 @@ impl Context {
 
     /// Every Vulkan device the loader reports, with its index for `VKDR_DEVICE`.
     pub fn list_devices() -> Result<Vec<String>> {
+        let _serial = lifecycle();
         // SAFETY: as in `with_options`.
         let entry = unsafe { ash::Entry::load() }
             .map_err(|e| Error::Loader(format!("cannot load the Vulkan loader ({e})")))?;
@@ -365,6 +367,7 @@ impl Context {
 
 impl Drop for Shared {
     fn drop(&mut self) {
+        let _serial = lifecycle();
         // SAFETY: the last handle is gone, so no resource remains; wait for the device,
         // then destroy in reverse order of creation.
         unsafe {
@@ -380,6 +383,17 @@ impl Drop for Shared {
         }
         let _ = &self.entry;
     }
+}
+
+/// Held while a context is created or destroyed: instances and devices made and destroyed
+/// on several threads at once (the tests run in parallel, each with its own context) are
+/// a known source of driver crashes, and one test binary (`tests/cpd.rs`) once ended in a
+/// segmentation fault on lavapipe under load. Contexts are few, so nothing waits long.
+fn lifecycle() -> std::sync::MutexGuard<'static, ()> {
+    static LIFECYCLE: Mutex<()> = Mutex::new(());
+    LIFECYCLE
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner())
 }
 
 fn create_instance(entry: &ash::Entry, validation: bool) -> Result<ash::Instance> {

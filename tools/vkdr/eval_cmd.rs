@@ -1017,7 +1017,7 @@ pub fn write_reports(
          as seen, both ways: the mean of that error and the one from points sampled on the registered surface to the test surface \
          (which also sees parts the registration has and the test instance has not), its ratio to the oracle's error both ways. \
          Registration: known pose, {} for {} iterations ({} loss); pose noise, the pose aligned alone for {} iterations ({} loss), \
-         {}then pose and shape by {} for {} ({} loss).{}{}\n\n\
+         {}then pose and shape by {} for {} ({}).{}{}\n\n\
          | category | instance | oracle | space optimum | known pose | ratio | / opt. | pose noise | ratio | / opt. | worst noise trial | noise, placed | noise, as seen | chamfer oracle / known / noise | iterations known / noise | ms known / noise |{}\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|{}\n",
         settings.observation(),
         c.fx, c.fy, c.cx, c.cy, c.width, c.height, settings.distance,
@@ -1038,7 +1038,7 @@ pub fn write_reports(
         if noisy.code_prior > 0.0 {
             format!("{} loss, plus a code prior of weight {:.3e} in training SD, both conditions", noisy.loss.name(), noisy.code_prior)
         } else {
-            noisy.loss.name().to_string()
+            format!("{} loss", noisy.loss.name())
         },
         settings.shading.map_or(String::new(), |s| format!(
             " Observed: the mask and grey Lambert shading (light towards {:?} in the camera frame, ambient {}); \
