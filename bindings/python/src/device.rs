@@ -346,7 +346,8 @@ impl Device {
     ///
     /// Options (the command line's `vkdr register` flags, the same defaults):
     /// `optimize_pose` (False), `optimize_scale` (False: one uniform scale, 0.5-1.5),
-    /// `iterations` (30, or 60 after a 15-iteration pose alignment with the pose free),
+    /// `iterations` (30, or 60 after a 15-iteration pose alignment with the pose free,
+    /// and with depth 10 more at a wide depth scale),
     /// `loss` ("mse"), `optimizer` ("bfgs"; "sgd", "adam"), `code_prior` ("auto" or a
     /// weight), `starts` (5 with the pose free, else 1: the pose turned about `up` by
     /// +-15, +-30 degrees, aligned, the best fitted), `up` ((0, 1, 0), the object's up
