@@ -160,10 +160,24 @@ impl RegisterParams {
     /// stage that brings the aligned pose to the measured depth).
     pub fn total_iterations(&self) -> usize {
         let aligned = self.pose_every > 0 && self.align > 0;
-        let reach = aligned && self.depth.is_some() && self.optimize_z;
         self.iterations
             + if aligned { self.align } else { 0 }
-            + if reach { REACH_ITERATIONS } else { 0 }
+            + self.reach().map_or(0, |reach| reach.iterations)
+    }
+
+    /// The stage after the alignment that brings the pose to the measured depth
+    /// ([`REACH`]), where it runs: with an alignment, depth and z free.
+    fn reach(&self) -> Option<RegisterParams> {
+        let depth = self.depth?;
+        (self.pose_every > 0 && self.align > 0 && self.optimize_z).then_some(RegisterParams {
+            iterations: REACH_ITERATIONS,
+            shading: None,
+            depth: Some(DepthLoss {
+                scale: depth.scale * REACH,
+                ..depth
+            }),
+            ..*self
+        })
     }
 }
 
@@ -625,16 +639,7 @@ impl Registrar {
         // not the instance's, and the pose alone would take the difference for distance.
         let mut done = params.align;
         let mut codes = None;
-        if let Some(depth) = params.depth.filter(|_| params.optimize_z) {
-            let reach = RegisterParams {
-                iterations: REACH_ITERATIONS,
-                shading: None,
-                depth: Some(DepthLoss {
-                    scale: depth.scale * REACH,
-                    ..depth
-                }),
-                ..*params
-            };
+        if let Some(reach) = params.reach() {
             let pose_only = !params.optimize_scale;
             let reached = self.run(
                 ctx,
@@ -646,7 +651,7 @@ impl Registrar {
                 done,
                 &mut on_chunk,
             )?;
-            done += REACH_ITERATIONS;
+            done += reach.iterations;
             let (reached, coordinates): (Vec<Registration>, Vec<Vec<f32>>) = reached
                 .into_iter()
                 .map(|s| (s.result, s.coordinates))
