@@ -107,7 +107,8 @@ impl DepthLossArgs {
             weight: self.depth_weight,
             occlusion: self.occlusion,
         };
-        loss.validate()?;
+        loss.validate()
+            .map_err(|e| anyhow::anyhow!("--depth-sigma, --depth-weight or --occlusion: {e}"))?;
         Ok(loss)
     }
 }

@@ -402,7 +402,7 @@ fn bad_input_exits_non_zero_naming_the_problem_and_keeps_existing_files() {
         ),
         case(
             &register(&["--depth", "--depth-sigma", "0"]),
-            "depth loss scale",
+            "--depth-sigma, --depth-weight or --occlusion: invalid input: the depth loss scale",
         ),
         case(
             &register(&["--depth", "--occlusion", "-0.01"]),
