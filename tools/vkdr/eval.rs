@@ -649,10 +649,21 @@ pub struct Trial {
     pub known_pose_on_bound: usize,
     pub pose_noise_on_bound: usize,
     /// With pose noise: the angle (radians) between the registered and the true up axis,
-    /// the error in the camera's z (metres, registered less true), and the scale found
-    /// (1 unless it is optimised).
+    /// the error in the camera's z of the surface's centroid (metres, registered less
+    /// true; [`surface_extent`]), and the scale found (1 unless it is optimised).
     pub tilt: f64,
     pub z_error: f64,
+    /// With pose noise: the registered surface's size over the test surface's (their
+    /// root-mean-square distances from their centroids, [`surface_extent`]): 1 where the
+    /// registration found the object's size, whether by the scale or by the shape.
+    #[serde(default)]
+    pub size: f64,
+    /// The error in the camera's z of the object frame's origin (metres). A diagnostic:
+    /// the shape modes move the surface about the origin, so a registered origin off in
+    /// depth with the surface in place is a shape shifted in its own frame, not an
+    /// object misplaced. (Absent from shards written before it: 0.)
+    #[serde(default)]
+    pub z_error_origin: f64,
     pub scale: f64,
     /// The angle (radians) between the up direction the registration was given and the
     /// true one (0 without gravity or with it known; the support plane's error from depth).
@@ -976,6 +987,33 @@ pub fn placed_like(vertices: &[DVec3], reference: &[DVec3]) -> Vec<DVec3> {
     vertices.iter().map(|&v| v + shift).collect()
 }
 
+/// Where a surface is and how large: the area-weighted centroid of the surface of
+/// `vertices` with `triangles`, and its root-mean-square distance from it (metres), whatever
+/// the mesh's vertex density.
+pub fn surface_extent(vertices: &[DVec3], triangles: &[[u32; 3]]) -> (DVec3, f64) {
+    let corners = |t: &[u32; 3]| t.map(|i| vertices[i as usize]);
+    let area_of = |[a, b, c]: [DVec3; 3]| 0.5 * (b - a).cross(c - a).length();
+    let (mut sum, mut area) = (DVec3::ZERO, 0.0);
+    for t in triangles {
+        let [a, b, c] = corners(t);
+        let weight = area_of([a, b, c]);
+        sum += weight * (a + b + c) / 3.0;
+        area += weight;
+    }
+    let area = area.max(f64::MIN_POSITIVE);
+    let centre = sum / area;
+    // A triangle's integral of |x|^2 over its area: A / 12 (sum |v|^2 + |sum v|^2).
+    let second: f64 = triangles
+        .iter()
+        .map(|t| {
+            let v = corners(t).map(|p| p - centre);
+            let squares: f64 = v.iter().map(|p| p.length_squared()).sum();
+            area_of(corners(t)) / 12.0 * (squares + (v[0] + v[1] + v[2]).length_squared())
+        })
+        .sum();
+    (centre, (second / area).sqrt())
+}
+
 /// The registered `vertices` (object frame) where the registration put them, in the true
 /// object frame: camera to object by the true `pose` after object to camera by the
 /// `registered` one. Their error against the test surface is the camera-frame distance
@@ -1145,6 +1183,7 @@ pub fn evaluate_instance(
     };
     let truth = surface_sample(test, SAMPLE_POINTS, hash(name));
     let test_vertices = test.points();
+    let (test_centre, test_size) = surface_extent(&test_vertices, test.triangles());
     let unscaled: Vec<DVec3> = test_vertices.iter().map(|p| *p / floor_scale).collect();
     let oracle_code = space.oracle_code(ctx, &unscaled, &settings.cpd)?;
     let oracle_vertices: Vec<DVec3> = space
@@ -1279,6 +1318,7 @@ pub fn evaluate_instance(
             rotation_error
         };
         let seen = as_seen(&result.vertices, result.pose, pose);
+        let (seen_centre, seen_size) = surface_extent(&seen, space.canonical.triangles());
         let pose_noise_seen = error(&seen);
         let registered_up = result.pose.rotation_matrix() * settings.up;
         trials.push(Trial {
@@ -1299,7 +1339,9 @@ pub fn evaluate_instance(
             known_pose_on_bound: known_on_bound,
             pose_noise_on_bound: result.on_bound,
             tilt: angle_between(registered_up, true_up),
-            z_error: result.pose.translation.z - pose.translation.z,
+            z_error: (pose.rotation_matrix() * (seen_centre - test_centre)).z,
+            size: seen_size / test_size,
+            z_error_origin: result.pose.translation.z - pose.translation.z,
             scale: result.scale,
             gravity_error: gravity.map_or(0.0, |g| angle_between(g.direction, true_up)),
         });
@@ -1464,6 +1506,30 @@ mod tests {
         let mesh = Mesh::bottle(12);
         let sample = surface_sample(&mesh, 200, 3);
         assert!(surface_error(&sample, &mesh.points(), mesh.triangles()) < 1e-7);
+    }
+
+    /// A unit square's centroid is its middle and its root-mean-square radius sqrt(1/6),
+    /// split into two triangles or into four about an off-centre vertex alike; scaled and
+    /// moved, the radius scales and the centroid moves.
+    #[test]
+    fn surface_extent_is_the_surface_s_not_its_vertices() {
+        let corners = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]];
+        let two: Vec<DVec3> = corners.iter().map(|&c| DVec3::from_array(c)).collect();
+        let mut fan = two.clone();
+        fan.push(DVec3::new(0.2, 0.7, 0.0));
+        let cases = [
+            (two, vec![[0, 1, 2], [0, 2, 3]]),
+            (fan, vec![[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]]),
+        ];
+        for (vertices, triangles) in cases {
+            let (centre, size) = surface_extent(&vertices, &triangles);
+            assert!((centre - DVec3::new(0.5, 0.5, 0.0)).length() < 1e-12, "{centre}");
+            assert!((size - (1.0f64 / 6.0).sqrt()).abs() < 1e-12, "{size}");
+            let moved: Vec<DVec3> = vertices.iter().map(|&v| 3.0 * v + DVec3::Z).collect();
+            let (centre, size) = surface_extent(&moved, &triangles);
+            assert!((centre - DVec3::new(1.5, 1.5, 1.0)).length() < 1e-12, "{centre}");
+            assert!((size - 3.0 * (1.0f64 / 6.0).sqrt()).abs() < 1e-12, "{size}");
+        }
     }
 
     /// A shape shifted in its frame is placed back exactly; a differently shaped one keeps

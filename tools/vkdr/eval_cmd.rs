@@ -828,10 +828,10 @@ fn pose_table(rows: &[Row], settings: &EvalSettings) -> String {
     let footprint = 0.25 * settings.distance / settings.camera.fx.min(settings.camera.fy);
     let mut md = format!(
         "\nPose with pose noise (rotation up to the symmetry about the up axis where the instance has it; tilt: the angle \
-         between the registered and the true up axis; z: the error in the camera's z; as seen / opt.: the error as seen over \
+         between the registered and the true up axis; z: the error in the camera's z of the surface's area-weighted centroid, registered at its pose against the test surface at the true pose, with that of the object frame's origin (a diagnostic: the shape modes move the surface about it) in trials.csv; size: the registered surface's root-mean-square distance from its centroid over the test surface's, 1 where the registration found the object's size, by the scale or by the shape; as seen / opt.: the error as seen over \
          the larger of the space optimum and a quarter pixel's footprint at the object's distance; both ways / floor: the error as seen both ways over the larger of the oracle's both ways and a \
          quarter pixel's footprint at the object's distance, {:.3} mm; means, largest in brackets):\n\n\
-         | category | instance | rotation (deg) | tilt (deg) | z (mm) | scale | as seen / opt. | both ways / floor |\n|---|---|---|---|---|---|---|---|\n",
+         | category | instance | rotation (deg) | tilt (deg) | z (mm) | scale | size | as seen / opt. | both ways / floor |\n|---|---|---|---|---|---|---|---|---|\n",
         1e3 * footprint
     );
     for r in rows {
@@ -842,7 +842,7 @@ fn pose_table(rows: &[Row], settings: &EvalSettings) -> String {
             |f: &dyn Fn(&Trial) -> f64| r.trials.iter().map(f).fold(f64::INFINITY, f64::min);
         let floor = r.oracle_both_ways.max(footprint);
         md.push_str(&format!(
-            "| {} | {} | {:.1} ({:.1}) | {:.1} ({:.1}) | {:.1} ({:.1}) | {:.3} ({:.3}-{:.3}) | {:.2} ({:.2}) | {:.2} ({:.2}) |\n",
+            "| {} | {} | {:.1} ({:.1}) | {:.1} ({:.1}) | {:.1} ({:.1}) | {:.3} ({:.3}-{:.3}) | {:.3} ({:.3}-{:.3}) | {:.2} ({:.2}) | {:.2} ({:.2}) |\n",
             r.category,
             r.instance,
             mean(&|t| t.rotation_error_symmetric.to_degrees()),
@@ -854,6 +854,9 @@ fn pose_table(rows: &[Row], settings: &EvalSettings) -> String {
             mean(&|t| t.scale),
             least(&|t| t.scale),
             most(&|t| t.scale),
+            mean(&|t| t.size),
+            least(&|t| t.size),
+            most(&|t| t.size),
             mean(&|t| t.pose_noise_seen) / r.space_optimum.max(footprint),
             most(&|t| t.pose_noise_seen) / r.space_optimum.max(footprint),
             mean(&|t| t.pose_noise_seen_both_ways) / floor,
@@ -960,12 +963,12 @@ fn view_table(rows: &[Row]) -> String {
 /// One line per trial: the view, the errors, and the pose error with pose noise.
 fn trials_csv(rows: &[Row]) -> String {
     let mut csv = String::from(
-        "category,instance,trial,azimuth_deg,elevation_deg,long_axis_angle_deg,short_axis_angle_deg,known_pose,pose_noise,pose_noise_placed,pose_noise_seen,rotation_error_deg,rotation_error_symmetric_deg,translation_error,known_pose_on_bound,pose_noise_on_bound,known_pose_loss,pose_noise_loss,pose_noise_seen_both_ways,tilt_deg,z_error,scale,gravity_error_deg\n",
+        "category,instance,trial,azimuth_deg,elevation_deg,long_axis_angle_deg,short_axis_angle_deg,known_pose,pose_noise,pose_noise_placed,pose_noise_seen,rotation_error_deg,rotation_error_symmetric_deg,translation_error,known_pose_on_bound,pose_noise_on_bound,known_pose_loss,pose_noise_loss,pose_noise_seen_both_ways,tilt_deg,z_error,scale,gravity_error_deg,z_error_origin,size\n",
     );
     for r in rows {
         for (i, t) in r.trials.iter().enumerate() {
             csv.push_str(&format!(
-                "{},{},{i},{:.2},{:.2},{:.2},{:.2},{:e},{:e},{:e},{:e},{:.3},{:.3},{:e},{},{},{:e},{:e},{:e},{:.3},{:e},{:.5},{:.3}\n",
+                "{},{},{i},{:.2},{:.2},{:.2},{:.2},{:e},{:e},{:e},{:e},{:.3},{:.3},{:e},{},{},{:e},{:e},{:e},{:.3},{:e},{:.5},{:.3},{:e},{:.5}\n",
                 r.category,
                 r.instance,
                 t.azimuth.to_degrees(),
@@ -988,6 +991,8 @@ fn trials_csv(rows: &[Row]) -> String {
                 t.z_error,
                 t.scale,
                 t.gravity_error.to_degrees(),
+                t.z_error_origin,
+                t.size,
             ));
         }
     }
@@ -1137,6 +1142,7 @@ pub fn write_reports(
                 "tilt_deg": stat(&eval::Stat::of(&r.trials.iter().map(|t| t.tilt.to_degrees()).collect::<Vec<_>>())),
                 "z_error_abs": stat(&eval::Stat::of(&r.trials.iter().map(|t| t.z_error.abs()).collect::<Vec<_>>())),
                 "scale": stat(&eval::Stat::of(&r.trials.iter().map(|t| t.scale).collect::<Vec<_>>())),
+                "size": stat(&eval::Stat::of(&r.trials.iter().map(|t| t.size).collect::<Vec<_>>())),
             },
         }));
     }
