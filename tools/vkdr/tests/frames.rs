@@ -113,6 +113,10 @@ fn occluded_noisy_frames_on_a_table() {
     for t in column(&out, "tilt_deg") {
         assert!(t < 2.0, "tilt {t} degrees");
     }
+    // In depth, where the surface is (its area-weighted centroid), with half of it hidden.
+    for z in column(&out, "z_error") {
+        assert!(z.abs() < 3e-3, "the surface {} mm off in depth", 1e3 * z);
+    }
 }
 
 #[test]
@@ -174,6 +178,10 @@ fn an_enlarged_instance_gets_its_scale() {
     // to the code: the error, not the scale alone, is what counts).
     for scale in column(&scaled, "scale") {
         assert!((1.15..1.4).contains(&scale), "scale {scale} for 1.25");
+    }
+    // The registered surface's size (its RMS radius over the test's) within 3%.
+    for size in column(&scaled, "size") {
+        assert!((0.97..1.03).contains(&size), "size {size} of the test's");
     }
 }
 
