@@ -163,6 +163,14 @@ pub fn parse_view(intrinsics: &str, size: &str, pose: &str, near: f64) -> Result
     })
 }
 
+/// The `--tilt-tolerance` flag (degrees, in [0, 90)) in radians.
+pub fn tilt_tolerance(degrees: f64) -> Result<f64> {
+    if !(degrees.is_finite() && (0.0..90.0).contains(&degrees)) {
+        anyhow::bail!("--tilt-tolerance must be 0 to 90 degrees, not {degrees}");
+    }
+    Ok(degrees.to_radians())
+}
+
 /// The `--code-prior` flag: `auto` (the weight the observation's pixel count implies,
 /// [`vkdr::register::observation_prior`]), or a weight in [0, 1] (0: none).
 pub fn code_prior(text: &str, pixels: usize) -> Result<f64> {

@@ -276,13 +276,7 @@ fn settings(args: &Args) -> Result<EvalSettings> {
         ),
         Some(_) => Some(vkdr_app::eval::GravitySource::FromDepth),
     };
-    if !(args.tilt_tolerance.is_finite() && (0.0..90.0).contains(&args.tilt_tolerance)) {
-        bail!(
-            "--tilt-tolerance must be 0 to 90 degrees, not {}",
-            args.tilt_tolerance
-        );
-    }
-    settings.tilt_tolerance = args.tilt_tolerance.to_radians();
+    settings.tilt_tolerance = crate::args::tilt_tolerance(args.tilt_tolerance)?;
     let loss: Option<vkdr::loss::Loss> = args.loss.map(Into::into);
     let optimizer: Option<vkdr::register::Optimizer> = args.optimizer.map(Into::into);
     for params in [&mut settings.known_pose, &mut settings.pose_noise] {

@@ -93,7 +93,7 @@ fn settings(args: &Args) -> Result<EvalSettings> {
         seed: args.seed,
         dims: args.dims,
         depth: Some(args.depth_loss.loss()?),
-        tilt_tolerance: args.tilt_tolerance.to_radians(),
+        tilt_tolerance: crate::args::tilt_tolerance(args.tilt_tolerance)?,
         gravity: match args.gravity.as_str() {
             "known" => Some(GravitySource::Known),
             "from-depth" => Some(GravitySource::FromDepth),
