@@ -70,19 +70,18 @@ void main() {
     bool shape = pc.pose_only == 0u;
 
     // Latent code: the gradients (the prior's at the code before this step) go into the
-    // moments first, then every coordinate steps.
+    // moments first, then every coordinate steps. The first gradient's norm sets the
+    // step's scale.
     float norm = 0.0;
     for (uint j = 0u; j < pc.dims; ++j) {
         float g = grad_latent[j] + prior_gradient(j);
         norm += g * g;
-    }
-    norm = sqrt(norm);
-    if (t == 0u) state[LR_LATENT] = norm > 0.0 ? pc.latent_step / norm : 0.0;
-    for (uint j = 0u; j < pc.dims && shape; ++j) {
-        float g = grad_latent[j] + prior_gradient(j);
+        if (!shape) continue;
         state[pc.velocity_at + j] = pc.momentum * state[pc.velocity_at + j] + g;
         if (pc.adam != 0u) state[pc.second_moment_at + j] = 0.999 * state[pc.second_moment_at + j] + 0.001 * g * g;
     }
+    norm = sqrt(norm);
+    if (t == 0u) state[LR_LATENT] = norm > 0.0 ? pc.latent_step / norm : 0.0;
     for (uint j = 0u; j < pc.dims && shape; ++j) {
         float v = state[pc.velocity_at + j];
         float step = state[LR_LATENT] * decay * v;

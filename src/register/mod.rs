@@ -1287,6 +1287,14 @@ fn read_pose(views: &crate::raster::ViewBuffers) -> Result<Pose> {
 mod tests {
     use super::*;
 
+    /// The shaders' gravity weight (glsl/include/objective.glsl) is [`GRAVITY_WEIGHT`].
+    #[test]
+    fn the_gravity_weight_matches_the_shaders() {
+        let glsl = include_str!("../../glsl/include/objective.glsl");
+        let line = format!("const float GRAVITY_WEIGHT = {GRAVITY_WEIGHT:.1};");
+        assert!(glsl.contains(&line), "objective.glsl lacks `{line}`");
+    }
+
     /// The starts alternate sides at growing turns, and a turn about the object's up axis
     /// keeps the position and the axis and moves a point off the axis by the turn.
     #[test]
