@@ -167,7 +167,7 @@ impl RegisterParams {
 
     /// The stage after the alignment that brings the pose to the measured depth
     /// ([`REACH`]), where it runs: with an alignment, depth and z free.
-    fn reach(&self) -> Option<RegisterParams> {
+    pub fn reach(&self) -> Option<RegisterParams> {
         let depth = self.depth?;
         (self.pose_every > 0 && self.align > 0 && self.optimize_z).then_some(RegisterParams {
             iterations: REACH_ITERATIONS,

@@ -366,6 +366,27 @@ fn trial_cameras(rng: &mut Rng, settings: &EvalSettings) -> Vec<(f64, f64)> {
 pub const MIN_VIEW_SEPARATION: f64 = std::f64::consts::PI / 3.0;
 
 impl EvalSettings {
+    /// The registrations' parameters with the pose known, with what the trials observe.
+    pub fn known_pose_params(&self) -> RegisterParams {
+        RegisterParams {
+            shading: self.shading,
+            depth: self.depth,
+            ..self.known_pose
+        }
+    }
+
+    /// The registrations' parameters with pose noise, with what the trials observe: depth
+    /// or a second view observe the distance, so z is optimised too (unless `fix_z`).
+    pub fn pose_noise_params(&self) -> RegisterParams {
+        let observes_z = (self.depth.is_some() || self.views > 1) && !self.fix_z;
+        RegisterParams {
+            shading: self.shading,
+            depth: self.depth,
+            optimize_z: self.pose_noise.optimize_z || observes_z,
+            ..self.pose_noise
+        }
+    }
+
     /// What each trial observes, in words (the table states it).
     pub fn observation(&self) -> String {
         let mut parts = vec![if self.shading.is_some() {
@@ -1216,19 +1237,7 @@ pub fn evaluate_instance(
     // known-pose registration's code (the oracle can be poor, and the least error the
     // space reaches must not be above what a registration found).
     let mut best_known: Option<(f64, Vec<f64>)> = None;
-    let known_pose = RegisterParams {
-        shading: settings.shading,
-        depth: settings.depth,
-        ..settings.known_pose
-    };
-    // Depth or a second view observe the distance: z is optimised too.
-    let observes_z = (settings.depth.is_some() || settings.views > 1) && !settings.fix_z;
-    let pose_noise = RegisterParams {
-        shading: settings.shading,
-        depth: settings.depth,
-        optimize_z: settings.pose_noise.optimize_z || observes_z,
-        ..settings.pose_noise
-    };
+    let (known_pose, pose_noise) = (settings.known_pose_params(), settings.pose_noise_params());
     let mut curve_known = vec![0.0; known_pose.total_iterations()];
     let mut curve_noise = vec![0.0; pose_noise.total_iterations()];
     for trial in 0..settings.trials {

@@ -1023,16 +1023,14 @@ pub fn write_reports(
         settings.elevation.0.to_degrees(), settings.elevation.1.to_degrees(), settings.trials, settings.seed, settings.dims,
         100.0 * settings.translation_noise, settings.rotation_noise.to_degrees(), eval::SAMPLE_POINTS,
         known.optimizer.name(), known.iterations, known.loss.name(), noisy.align, noisy.align_loss.name(),
-        if settings.depth.is_some() && !settings.fix_z {
+        settings.pose_noise_params().reach().map_or(String::new(), |reach| {
             format!(
                 "then {} for {} with the mask and the depth at {} times the depth scale, ",
                 if noisy.optimize_scale { "with the shape" } else { "alone" },
-                vkdr::register::REACH_ITERATIONS,
+                reach.iterations,
                 vkdr::register::REACH
             )
-        } else {
-            String::new()
-        },
+        }),
         noisy.optimizer.name(), noisy.iterations,
         if noisy.code_prior > 0.0 {
             format!("{} loss, plus a code prior of weight {:.3e} in training SD, both conditions", noisy.loss.name(), noisy.code_prior)
