@@ -1,6 +1,6 @@
 """tools/ray_eval.py on a local Ray (2 CPUs): 4 shards of a small generated set merge into
 the tables of the unsharded run (the wall times aside), and a failing task is retried and
-reported. Needs Ray (`pip install "ray[default]"`) and the vkdr binary
+reported; 2 shards of eval-frames on rendered BOP frames merge into its unsharded tables. Needs Ray (`pip install "ray[default]"`) and the vkdr binary
 (target/release/vkdr, or VKDR_BIN); skipped without Ray, not run by CI (Ray is large):
 
     python3 -m pytest tools/tests/test_ray_eval.py
@@ -58,3 +58,21 @@ def test_ray_shards_merge_into_the_unsharded_tables(tmp_path):
     done = run(*ray_eval, "--shards", "2", "--retries", "2", "--out", tmp_path / "bad", "--", *bad, ok=False)
     assert "failed after 2 retries" in done.stderr and "no category" in done.stderr
     assert "no merge" in done.stderr
+
+
+def test_ray_eval_frames_shards_merge_into_the_unsharded_tables(tmp_path):
+    if not VKDR.exists():
+        pytest.fail(f"no vkdr binary at {VKDR}: cargo build --release, or set VKDR_BIN")
+    data, frames = tmp_path / "data", tmp_path / "frames"
+    run(VKDR, "gen-dataset", "--train", "4", "--test", "2", "--out", data)
+    run(VKDR, "gen-frames", "--dataset", data, "--categories", "bottle", "--occluder", "--out", frames)
+    flags = [frames, "--categories", frames / "map.json", "--trials", "2", "--spaces", tmp_path / "spaces"]
+    run(VKDR, "eval-frames", *flags, "--out", tmp_path / "full")
+    done = run(sys.executable, ROOT / "tools" / "ray_eval.py", "--command", "eval-frames", "--address", "local",
+               "--num-cpus", "2", "--gpus-per-task", "0", "--vkdr", VKDR, "--shards", "2", "--out", tmp_path / "ray",
+               "--", *flags)
+    assert "[2/2]" in done.stderr
+    full = json.loads((tmp_path / "full" / "table.json").read_text())
+    merged = json.loads((tmp_path / "ray" / "table.json").read_text())
+    assert len(full) == 2 and without_times(merged) == without_times(full)
+    assert (tmp_path / "ray" / "trials.csv").read_bytes() == (tmp_path / "full" / "trials.csv").read_bytes()
