@@ -84,6 +84,27 @@ impl ViewArgs {
     }
 }
 
+/// `--depth-scale` where the command has no depth unit to take (eval renders its depth,
+/// eval-frames reads BOP's `depth_scale`): the flag once named the depth cost's scale, now
+/// `--depth-sigma`, and clap alone would suggest `--depth-holes`.
+#[derive(clap::Args)]
+pub struct RenamedArgs {
+    #[arg(long = "depth-scale", hide = true, allow_hyphen_values = true)]
+    depth_scale: Option<String>,
+}
+
+impl RenamedArgs {
+    pub fn check(&self) -> Result<()> {
+        if self.depth_scale.is_some() {
+            anyhow::bail!(
+                "--depth-scale is the unit of a depth PNG (register's flag; eval-frames reads \
+                 scene_camera.json's depth_scale): the depth cost's scale is --depth-sigma"
+            );
+        }
+        Ok(())
+    }
+}
+
 #[derive(clap::Args)]
 pub struct DepthLossArgs {
     /// Metres: the depth cost's scale. A pixel's depth residual r costs (r/s)^2 / (1 +

@@ -16,6 +16,7 @@ use vkdr::{Mesh, Pose};
 use vkdr_app::eval::{self, EvalSettings, Row, Trial};
 use vkdr_app::plot::{Plot, PALETTE};
 
+use crate::args::RenamedArgs;
 use crate::args::{DepthLossArgs, ShadingArgs};
 use crate::choices::{LossChoice, OptimizerChoice};
 use crate::shape_cmd::obj_files;
@@ -81,6 +82,8 @@ pub struct Args {
     depth_noise: f64,
     #[command(flatten)]
     depth_loss: DepthLossArgs,
+    #[command(flatten)]
+    renamed: RenamedArgs,
     /// Cameras per trial, 1 to 6: the others at seeded azimuths at least 60 degrees from
     /// every other, their relative poses known, one code and object pose for all.
     #[arg(long, default_value_t = 1)]
@@ -200,6 +203,7 @@ pub fn run(args: &Args) -> Result<()> {
 
 /// The evaluation's settings: the defaults with the flags' changes, each checked.
 fn settings(args: &Args) -> Result<EvalSettings> {
+    args.renamed.check()?;
     if args.dims == 0 {
         bail!("--dims must be at least 1");
     }

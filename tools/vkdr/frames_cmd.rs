@@ -18,6 +18,7 @@ use vkdr_app::bop::{self, Frame, FrameObject, ObjectCategory};
 use vkdr_app::eval::{self, EvalSettings, GravitySource, Observation, TrialScene, TrialSource};
 
 use crate::args::DepthLossArgs;
+use crate::args::RenamedArgs;
 use crate::eval_cmd::dir_name;
 use crate::shape_cmd::obj_files;
 use crate::shard;
@@ -51,6 +52,8 @@ pub struct Args {
     dims: usize,
     #[command(flatten)]
     depth_loss: DepthLossArgs,
+    #[command(flatten)]
+    renamed: RenamedArgs,
     /// Evaluate shard K of N only (K from 0 to N-1), one frame's object a unit; writes
     /// OUT/shard.json for --merge (as `vkdr eval --shard`).
     #[arg(long)]
@@ -82,6 +85,7 @@ struct Flags {
 
 /// The evaluation's settings from the flags (the camera and distance are each frame's).
 fn settings(args: &Args) -> Result<EvalSettings> {
+    args.renamed.check()?;
     if !(2..=1000).contains(&args.trials) {
         bail!(
             "--trials must be 2 to 1000 (a spread needs two), not {}",

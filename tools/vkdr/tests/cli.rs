@@ -308,6 +308,10 @@ fn bad_input_exits_non_zero_naming_the_problem_and_keeps_existing_files() {
         case(&eval(&["--dims", "0"]), "--dims"),
         case(&eval(&["--code-prior", "-1"]), "--code-prior must be auto or a weight in [0, 1], not -1"),
         case(
+            &eval(&["--depth", "--depth-scale", "0.01"]),
+            "the depth cost's scale is --depth-sigma",
+        ),
+        case(
             &eval(&["--gravity", "known", "--tilt-tolerance", "95"]),
             "--tilt-tolerance must be 0 to 90 degrees, not 95",
         ),
