@@ -728,3 +728,54 @@ fn a_start_far_off_in_depth_reaches_the_measured_depth() {
     }
     common::assert_no_validation_errors(&ctx);
 }
+
+/// A box in front of the bottle's left half and everything left of it, found from the
+/// depth: a start whose silhouette lies wholly behind the box sees only unknown pixels,
+/// which cost nothing and pull nowhere, and stayed where it started (5 cm off). The start
+/// is moved onto the visible mask first, and the registration reaches the true position;
+/// a start that lands on the mask is not moved (it ends where it would have anyway).
+#[test]
+fn a_start_hidden_behind_an_occluder_is_moved_onto_the_mask() {
+    let ctx = common::context();
+    let space = space(&ctx);
+    let truth = space.vertices(&space.training_codes[2]).unwrap();
+    let pose = Pose::new([0.0, 0.0, 0.6], [std::f64::consts::PI, 0.0, 0.0]).unwrap();
+    let (mut mask, mut depth) = observe_with_depth(&ctx, &space, &truth, view(pose));
+    // The box: every column left of the image's centre, 20 cm in front of the bottle.
+    for (i, (m, d)) in mask.iter_mut().zip(depth.iter_mut()).enumerate() {
+        if i % 128 < 64 {
+            *m = 0.0;
+            *d = 0.4;
+        }
+    }
+    assert!(mask.iter().any(|&m| m > 0.0), "the right half is seen");
+    let registrar = Registrar::new(&ctx).unwrap();
+    let params = RegisterParams {
+        depth: Some(vkdr::diff::DepthLoss::default()),
+        optimize_z: true,
+        ..RegisterParams::free_pose(128 * 128)
+    };
+    let register = |x: f64| {
+        let start = Pose::new([x, 0.01, 0.6], [std::f64::consts::PI, 0.0, 0.0]).unwrap();
+        let job = Job {
+            depth: Some(&depth),
+            ..Job::new(&space, &mask, view(start))
+        };
+        registrar.register(&ctx, job, &params, |_, _| {}).unwrap()
+    };
+    // Its silhouette (about 12 pixels either side of its axis) ends 8 pixels left of the
+    // image's centre, all of it behind the box.
+    let hidden = register(-0.05);
+    let off = |r: &vkdr::register::Registration| {
+        (r.pose.translation - pose.translation).truncate().length()
+    };
+    eprintln!(
+        "from 5 cm left, behind the box: {:.2} mm off",
+        1e3 * off(&hidden)
+    );
+    assert!(off(&hidden) < 3e-3, "{} m off", off(&hidden));
+    let seen = register(0.01);
+    eprintln!("from 1 cm right: {:.2} mm off", 1e3 * off(&seen));
+    assert!(off(&seen) < 3e-3, "{} m off", off(&seen));
+    common::assert_no_validation_errors(&ctx);
+}
