@@ -57,8 +57,9 @@ pub struct Args {
     /// poses relative to the first known.
     #[arg(long, default_value_t = 1)]
     pub views: usize,
-    /// Starts of the registration from starts (each aligned, the best fitted: the default
-    /// of `vkdr eval` and `vkdr register` with pose noise), timed against one start.
+    /// Starts of the registration from starts (the first registered, the others' turns
+    /// tried on its fit: the default of `vkdr eval` and `vkdr register` with pose noise),
+    /// timed against one start.
     #[arg(long, default_value_t = eval::EvalSettings::default().starts)]
     pub starts: usize,
     /// Reuse the space.npz of an earlier run with the same category, subdivision and seed.
@@ -233,8 +234,9 @@ pub fn run(args: &Args) -> Result<()> {
     }
     eprintln!();
     let wall = median(walls.clone());
-    // The same registration from starts turned about the up axis, each aligned and the
-    // best fitted, timed in turn with one start so that both see the same machine.
+    // The same registration from starts turned about the up axis (the first registered,
+    // the others' turns tried on its fit), timed in turn with one start so that both see
+    // the same machine.
     let starts = vkdr::register::turned_starts(
         jobs[0].view.pose,
         settings.up,
@@ -334,7 +336,7 @@ pub fn run(args: &Args) -> Result<()> {
          | error at the start (mean shape) / end | {start:.2} / {end:.2} mm ({ratio:.2}x oracle) |\n\
          | error at the end as seen (at its registered pose, against the test surface at the true one) | {seen:.2} mm ({seen_ratio:.2}x oracle) |\n\
          | batched runs' error / oracle | {batch_errors} |\n\
-         | {starts} starts (each aligned, the best fitted) / one start, wall (median of {reps} pairs, the code prior in both) | {starts_ratio:.2} |\n\
+         | {starts} starts (the first fitted, the turns tried on its fit) / one start, wall (median of {reps} pairs, the code prior in both) | {starts_ratio:.2} |\n\
          | error at the end as seen from {starts} starts | {seen_starts:.2} mm ({seen_starts_ratio:.2}x oracle) |\n",
         category = args.category,
         observed = match shading {

@@ -309,10 +309,10 @@ pub struct EvalSettings {
     pub fix_z: bool,
     /// Starts per trial with pose noise: the noisy start and the starts turned about the
     /// object's up axis by multiples of the rotation noise
-    /// ([`vkdr::register::turned_starts`]); each is aligned and the aligned pose with the
-    /// least loss (what the images tell, not the error) is fitted
+    /// ([`vkdr::register::turned_starts`]); the noisy start is registered and the others'
+    /// turns are tried on its fit, by the loss (what the images tell, not the error)
     /// (`Registrar::register_from_starts`); the milliseconds are the wall time and the
-    /// iterations count every start.
+    /// iterations count every evaluation.
     pub starts: usize,
     /// A real frame's ways, rendered into each trial's first view: a box in front of the
     /// object's left half (the mask shows the visible part; with depth the box's depth is

@@ -97,8 +97,9 @@ pub struct Args {
     #[arg(long)]
     fix_z: bool,
     /// With pose noise: starts per trial, the noisy start and it turned about the up axis
-    /// by +-15, +-30, ... degrees (the rotation noise); each is aligned and the aligned
-    /// pose with the least loss is fitted (1 to 8; the time columns count every start).
+    /// by +-15, +-30, ... degrees (the rotation noise); the noisy start is registered and
+    /// the others' turns are tried on its fit, the joint fit running again from a turn
+    /// that scores 5% lower (1 to 8; the time columns count it all).
     #[arg(long, default_value_t = vkdr_app::eval::EvalSettings::default().starts)]
     starts: usize,
     /// Weight of the Gaussian prior on the code in training standard deviations
@@ -1047,7 +1048,7 @@ pub fn write_reports(
             s.light, s.ambient
         )),
         if settings.starts > 1 {
-            format!(" Pose noise: {} starts per trial (the noisy start, and it turned about the up axis by {}), each aligned, the joint fit from the aligned one with the least loss; its iterations and ms count every start.",
+            format!(" Pose noise: {} starts per trial (the noisy start, and it turned about the up axis by {}): the noisy start registered, the others' turns tried on its fit, the joint fit again from a turn that scores 5% lower; its iterations and ms count it all.",
                 settings.starts,
                 vkdr::register::start_turns(settings.starts, settings.rotation_noise)[1..].iter().map(|t| format!("{:+.0} deg", t.to_degrees())).collect::<Vec<_>>().join(", "))
         } else {

@@ -90,9 +90,10 @@ pub struct Args {
     #[arg(long, allow_hyphen_values = true, default_value = "auto")]
     code_prior: String,
     /// With --optimize-pose: starts, the initial pose and it turned about the object's
-    /// --up axis by +-15, +-30, ... degrees; each is aligned and the aligned pose with the
-    /// least loss is fitted (1 to 8; against a rotation that stops in a local minimum;
-    /// 5 starts cost 1.7-2 times one, docs/evaluation.md).
+    /// --up axis by +-15, +-30, ... degrees; the initial pose is registered and the
+    /// others' turns are tried on its fit, the joint fit running again from a turn that
+    /// scores 5% lower (1 to 8; against a rotation that stops in a local minimum, as a
+    /// mug's handle; the cost: docs/evaluation.md).
     #[arg(long, default_value_t = vkdr_app::eval::EvalSettings::default().starts)]
     starts: usize,
     /// The object's up axis for --starts and --gravity, in its own frame: x,y,z.

@@ -350,7 +350,7 @@ impl Device {
     /// and with depth 10 more at a wide depth scale),
     /// `loss` ("mse"), `optimizer` ("bfgs"; "sgd", "adam"), `code_prior` ("auto" or a
     /// weight), `starts` (5 with the pose free, else 1: the pose turned about `up` by
-    /// +-15, +-30 degrees, aligned, the best fitted), `up` ((0, 1, 0), the object's up
+    /// +-15, +-30 degrees, tried on the first start's fit), `up` ((0, 1, 0), the object's up
     /// axis), `gravity` (None, (x, y, z) up in the camera frame, or "from-depth"),
     /// `tilt_tolerance` (1 degree), `depth_sigma` (0.01 m), `depth_weight` (1),
     /// `occlusion` (0.02 m), `light` ((0, 0, -1)), `ambient` (0.2). `progress(iterations
