@@ -128,7 +128,8 @@ pub fn check_npy_size(name: &str, bytes: &[u8]) -> Result<()> {
             "the header declares shape ({shape}), larger than any array can be"
         )));
     }
-    let declared = count.saturating_mul(element_bytes);
+    // At least a byte an element: a reader allocates the shape before it checks the type.
+    let declared = count.saturating_mul(element_bytes.max(1));
     let held = (bytes.len() - start - length) as u64;
     if declared > held {
         return Err(bad(format!(

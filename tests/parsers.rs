@@ -63,6 +63,19 @@ fn npy_with_a_size_past_isize_max_is_an_error() {
     }
 }
 
+/// An element type of size 0 (`<x0`, no numpy type) declares no data for any shape, and
+/// ndarray-npy allocates the whole shape before it looks at the type: the size is checked
+/// as if each element held a byte (found by the property test below, which aborted the
+/// process allocating 7.4e18 bytes).
+#[test]
+fn npy_with_an_element_of_size_0_is_an_error() {
+    for descr in ["<x0", "|b0", ">f00"] {
+        let bytes = npy_header(descr, "1850029010375106144,");
+        let error = vkdr::io::points_from_npy("test.npy", &bytes).unwrap_err();
+        assert!(error.to_string().contains("but the file holds"), "{error}");
+    }
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 256, ..ProptestConfig::default() })]
 
