@@ -550,7 +550,7 @@ impl Registrar {
     /// optimised, `params.align` > 0) the first start is registered, and the fitted shape
     /// is then turned as each further start was turned from the first and scored by one
     /// evaluation; from a turn that scores [`TURN_GAIN`] lower the joint fit runs again
-    /// and the lower final loss is kept ([`Registrar::check_turns`]): k starts cost one
+    /// and the lower final loss is kept (`Registrar::check_turns`, private): k starts cost one
     /// registration, k evaluations and a second joint fit where a turn wins (`vkdr
     /// bench-register` times it). Without an alignment stage every start runs in full
     /// (one [`Registrar::register_batch`]) and the least final loss is kept. The result's
@@ -1408,7 +1408,6 @@ pub const REACH: f64 = 10.0;
 /// See [`REACH`].
 pub const REACH_ITERATIONS: usize = 10;
 
-/// `jobs` at the poses that `results` reached.
 /// The rotations (object frame) that took the first job's pose to each job's: identity
 /// first.
 fn relative_turns(jobs: &[Job]) -> Vec<DMat3> {
@@ -1467,11 +1466,12 @@ fn symmetry_pivot(vertices: &[DVec3], axis: DVec3) -> DVec3 {
 }
 
 /// A turned pose's loss must be this fraction below the fit's for the joint fit to run
-/// again from it ([`Registrar::check_turns`]).
+/// again from it (the registration from starts).
 pub const TURN_GAIN: f64 = 0.05;
-/// Pose-only iterations that score a turned pose ([`Registrar::check_turns`]).
+/// Pose-only iterations that score a turned pose (the registration from starts).
 pub const TURN_ITERATIONS: usize = 1;
 
+/// `jobs` at the poses that `results` reached.
 fn at_poses<'a>(jobs: &[Job<'a>], results: &[Registration]) -> Vec<Job<'a>> {
     jobs.iter()
         .zip(results)
