@@ -15,17 +15,23 @@ use vkdr_app::dataset::{instance, Rng};
 use vkdr_app::eval;
 
 fn space(ctx: &vkdr::gpu::Context) -> ShapeSpace {
-    let mut rng = Rng::new(11);
-    let canonical = instance("bottle", &mut rng).unwrap();
-    let train: Vec<(String, Vec<DVec3>)> = (0..6)
+    category_space(ctx, "bottle", 11, 6)
+}
+
+/// A 3-dimensional shape space of generated `category` instances: the canonical and
+/// `train` training instances drawn from `seed`, CPD of 60 iterations.
+fn category_space(ctx: &vkdr::gpu::Context, category: &str, seed: u64, train: usize) -> ShapeSpace {
+    let mut rng = Rng::new(seed);
+    let canonical = instance(category, &mut rng).unwrap();
+    let train: Vec<(String, Vec<DVec3>)> = (0..train)
         .map(|i| {
-            let m = instance("bottle", &mut rng).unwrap();
-            (format!("b{i}"), m.points())
+            let m = instance(category, &mut rng).unwrap();
+            (format!("{}{i}", &category[..1]), m.points())
         })
         .collect();
     ShapeSpace::build(
         ctx,
-        "bottle",
+        category,
         &canonical,
         &train,
         3,
@@ -790,17 +796,7 @@ fn a_start_hidden_behind_an_occluder_is_moved_onto_the_mask() {
 #[test]
 fn the_starts_turns_find_a_mug_s_handle() {
     let ctx = common::context();
-    let mut rng = Rng::new(5);
-    let canonical = instance("mug", &mut rng).unwrap();
-    let train: Vec<(String, Vec<DVec3>)> = (0..5)
-        .map(|i| (format!("m{i}"), instance("mug", &mut rng).unwrap().points()))
-        .collect();
-    let params = CpdParams {
-        max_iterations: 60,
-        ..Default::default()
-    };
-    let space =
-        ShapeSpace::build(&ctx, "mug", &canonical, &train, 3, &params, |_, _, _| {}).unwrap();
+    let space = category_space(&ctx, "mug", 5, 5);
     let truth = space.vertices(&space.training_codes[1]).unwrap();
     let up = DVec3::Y;
     let pose = Pose::new([0.0, 0.0, 0.6], [2.2, 0.5, -0.3]).unwrap();
