@@ -16,8 +16,7 @@ use vkdr::{Mesh, Pose};
 use vkdr_app::eval::{self, EvalSettings, Row, Trial};
 use vkdr_app::plot::{Plot, PALETTE};
 
-use crate::args::RenamedArgs;
-use crate::args::{DepthLossArgs, ShadingArgs};
+use crate::args::{DepthLossArgs, RenamedArgs, ShadingArgs};
 use crate::choices::{LossChoice, OptimizerChoice};
 use crate::shape_cmd::obj_files;
 use crate::shard;

@@ -17,8 +17,7 @@ use vkdr::{Mesh, Pose};
 use vkdr_app::bop::{self, Frame, FrameObject, ObjectCategory};
 use vkdr_app::eval::{self, EvalSettings, GravitySource, Observation, TrialScene, TrialSource};
 
-use crate::args::DepthLossArgs;
-use crate::args::RenamedArgs;
+use crate::args::{DepthLossArgs, RenamedArgs};
 use crate::eval_cmd::dir_name;
 use crate::shape_cmd::obj_files;
 use crate::shard;
