@@ -629,7 +629,7 @@ impl Registrar {
         } else {
             (jobs, Vec::new())
         };
-        // With gravity and the pose free, every start is levelled first.
+        // With gravity and the pose free, every job's start is levelled first.
         let levelled: Vec<Job> = jobs
             .iter()
             .map(|job| -> Result<Job> {
