@@ -35,6 +35,7 @@ fn main() -> vkdr::Result<()> {
     let mut scene = Scene::new(
         &ctx,
         &SceneDesc {
+            loss_pixels: None,
             mesh: &sphere,
             views: &[view],
             loss: Loss::Mse,

@@ -59,6 +59,7 @@
 //!     observed: &observed,
 //!     attributes: None,
 //!     shading: None,
+//!     loss_pixels: None,
 //!     depth: None,
 //! };
 //! let renderer = DiffRenderer::new(&ctx)?;

@@ -47,6 +47,10 @@ pub struct ShapeSpace {
     pub category: String,
     /// Name of each training instance, in the order of `training_codes`.
     pub training_names: Vec<String>,
+    /// The category's up axis in the canonical frame (its dataset's `info.json`
+    /// `up_axis`), where known: registrations keep it along gravity and turn their starts
+    /// about it. None in spaces built without it and in files written before it was kept.
+    pub up: Option<DVec3>,
 }
 
 /// What CPD found for one training instance, both flattened M x 3: the coefficients W and
@@ -99,6 +103,29 @@ impl ShapeSpace {
             dims,
             training.iter().map(|t| t.0.clone()).collect(),
         )
+    }
+
+    /// The same space with the category's up axis `up` (a nonzero direction, normalised
+    /// here).
+    pub fn with_up(self, up: DVec3) -> Result<Self> {
+        if !(up.is_finite() && up.length() > 0.0) {
+            return Err(Error::InvalidInput(format!(
+                "a shape space's up axis must be a nonzero direction, not {up}"
+            )));
+        }
+        Ok(Self {
+            up: Some(up.normalize()),
+            ..self
+        })
+    }
+
+    /// The up axis registrations use: the space's own, or y (with `known` false) for a
+    /// space that does not carry one.
+    pub fn up_or_y(&self) -> (DVec3, bool) {
+        match self.up {
+            Some(up) => (up, true),
+            None => (DVec3::Y, false),
+        }
     }
 
     /// PCA of the flattened coefficients (T x 3M) through the T x T Gram matrix. G is
@@ -193,6 +220,7 @@ impl ShapeSpace {
             deformation_basis,
             category: category.into(),
             training_names: names,
+            up: None,
         })
     }
 
@@ -362,6 +390,7 @@ impl ShapeSpace {
             "training_names": self.training_names,
             "beta": self.beta,
             "explained_variance": self.explained_variance,
+            "up_axis": self.up.map(|u| u.to_array()),
             "arrays": path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default(),
         });
         let json = serde_json::to_string_pretty(&json)
@@ -456,6 +485,26 @@ impl ShapeSpace {
                     )
                 })?,
         };
+        // The category's up axis (absent in files written before it was kept: None).
+        let up = match json.get("up_axis") {
+            None | Some(serde_json::Value::Null) => None,
+            Some(axis) => {
+                let values: Option<Vec<f64>> = axis
+                    .as_array()
+                    .map(|a| a.iter().filter_map(serde_json::Value::as_f64).collect());
+                match values.as_deref() {
+                    Some(&[x, y, z]) if DVec3::new(x, y, z).length() > 1e-6 => {
+                        Some(DVec3::new(x, y, z).normalize())
+                    }
+                    _ => {
+                        return Err(Error::format(
+                            &description,
+                            format!("\"up_axis\" must be 3 numbers, not zero, not {axis}"),
+                        ))
+                    }
+                }
+            }
+        };
         let positions = vertices
             .rows()
             .into_iter()
@@ -481,6 +530,7 @@ impl ShapeSpace {
             deformation_basis: rows(&deformation),
             category: json["category"].as_str().unwrap_or_default().to_string(),
             training_names,
+            up,
         })
     }
 }

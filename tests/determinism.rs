@@ -59,6 +59,7 @@ fn gradients_are_bit_identical_run_to_run() {
         (Loss::Mse, Some(Shading::default())),
     ] {
         let desc = SceneDesc {
+            loss_pixels: None,
             mesh: &mesh,
             views: &views,
             loss,

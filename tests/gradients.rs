@@ -98,6 +98,7 @@ fn device_scene(ctx: &vkdr::gpu::Context, case: &Case) -> Scene {
     Scene::new(
         ctx,
         &SceneDesc {
+            loss_pixels: None,
             mesh: &case.mesh,
             views: &case.views,
             loss: case.loss,
@@ -532,6 +533,7 @@ fn depth_needs_the_mse_loss_and_valid_depths() {
     let Err(e) = Scene::new(
         &ctx,
         &SceneDesc {
+            loss_pixels: None,
             mesh: &case.mesh,
             views: &case.views,
             loss: case.loss,
@@ -552,6 +554,7 @@ fn depth_needs_the_mse_loss_and_valid_depths() {
     let Err(e) = Scene::new(
         &ctx,
         &SceneDesc {
+            loss_pixels: None,
             mesh: &bad.mesh,
             views: &bad.views,
             loss: bad.loss,
@@ -868,6 +871,7 @@ fn images_past_the_storage_buffer_range_are_refused() {
     let result = Scene::new(
         &ctx,
         &SceneDesc {
+            loss_pixels: None,
             mesh: &case.mesh,
             views: &case.views,
             loss: Loss::Mse,
@@ -943,4 +947,99 @@ fn dense_spheres_match_re_rendered_central_differences() {
             "dL/dtz error {dtz}, stretch error {stretch}"
         );
     }
+}
+
+/// A scene evaluated on a region of interest cut out of its image (the camera's principal
+/// point moved by the region's corner, the loss averaged over the whole image's pixels, as
+/// `register` cuts it) has the whole image's loss and gradients within float rounding,
+/// where the region holds the mask and the silhouette.
+fn assert_region_matches_whole(case: &Case) {
+    let ctx = common::context();
+    let renderer = DiffRenderer::new(&ctx).unwrap();
+    let whole = device_scene(&ctx, case).evaluate(&ctx, &renderer).unwrap();
+    let camera = case.views[0].camera;
+    let (w, h) = (camera.width, camera.height);
+    // The box of the mask and of the rendered silhouette, 3 pixels wider.
+    let (mut lo, mut hi) = ((w, h), (0, 0));
+    for i in 0..(w * h) as usize {
+        if case.observed[i] > 0.0 || whole.ids[i] > 0 {
+            let (x, y) = (i as u32 % w, i as u32 / w);
+            lo = (lo.0.min(x), lo.1.min(y));
+            hi = (hi.0.max(x), hi.1.max(y));
+        }
+    }
+    let region = vkdr::register::Region {
+        x: lo.0.saturating_sub(3),
+        y: lo.1.saturating_sub(3),
+        width: (hi.0 + 4).min(w) - lo.0.saturating_sub(3),
+        height: (hi.1 + 4).min(h) - lo.1.saturating_sub(3),
+    };
+    assert!(region.width * region.height < w * h * 3 / 4, "{region:?}");
+    let observed = region.crop(&case.observed, w);
+    let depth = case.depth.as_ref().map(|(d, l)| (region.crop(d, w), *l));
+    let views = [View {
+        camera: region.camera(&camera),
+        pose: case.views[0].pose,
+    }];
+    let cut = Scene::new(
+        &ctx,
+        &SceneDesc {
+            mesh: &case.mesh,
+            views: &views,
+            loss: case.loss,
+            observed: &observed,
+            attributes: None,
+            shading: None,
+            depth: depth
+                .as_ref()
+                .map(|(depth, loss)| ObservedDepth { depth, loss: *loss }),
+            loss_pixels: Some(w as u64 * h as u64),
+        },
+    )
+    .unwrap()
+    .evaluate(&ctx, &renderer)
+    .unwrap();
+    let close = |a: f64, b: f64, scale: f64| (a - b).abs() <= 1e-4 * scale + 1e-12;
+    assert!(
+        close(
+            cut.loss[0] as f64,
+            whole.loss[0] as f64,
+            whole.loss[0].abs() as f64
+        ),
+        "loss {} on the region, {} on the whole image",
+        cut.loss[0],
+        whole.loss[0]
+    );
+    let flat = |g: &[[f32; 3]]| g.iter().flatten().map(|&v| v as f64).collect::<Vec<_>>();
+    let (got, want) = (flat(&cut.vertex_gradient), flat(&whole.vertex_gradient));
+    let norm = want.iter().map(|v| v * v).sum::<f64>().sqrt();
+    assert!(norm > 0.0);
+    let difference = got
+        .iter()
+        .zip(&want)
+        .map(|(a, b)| (a - b).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    assert!(
+        difference <= 1e-4 * norm,
+        "vertex gradients differ by {difference:e} of {norm:e}"
+    );
+    let (a, b) = (cut.pose_gradient[0], whole.pose_gradient[0]);
+    let pose_norm = b.iter().map(|&v| (v as f64).powi(2)).sum::<f64>().sqrt();
+    for k in 0..6 {
+        assert!(
+            close(a[k] as f64, b[k] as f64, pose_norm),
+            "pose gradient {k}: {} on the region, {} on the whole image",
+            a[k],
+            b[k]
+        );
+    }
+}
+
+#[test]
+fn a_region_of_interest_has_the_whole_image_s_loss_and_gradients() {
+    for loss in [Loss::Mse, Loss::Distance, Loss::Iou] {
+        assert_region_matches_whole(&sphere_case(loss, 0.06, 0.5, 128));
+    }
+    assert_region_matches_whole(&with_depth(sphere_case(Loss::Mse, 0.06, 0.5, 128)));
 }

@@ -90,6 +90,7 @@ layout(push_constant, std430) uniform Constants {
     float depth_scale;   // metres: the depth cost's scale (loss.glsl depth_term)
     float depth_weight;
     float occlusion;     // metres: a covered background pixel measured nearer is occluded (loss.glsl)
+    float loss_pixels;   // the pixel count a view's loss is averaged over (loss.glsl)
 } pc;
 
 // What the scene compares, as specialization constants (ids 1 to 4; a pipeline per

@@ -96,7 +96,7 @@ vec4 load_observed(uint index) {
 vec3 loss_terms(uint index, vec4 a) {
     if (unknown(index)) return vec3(0.0);
     vec4 o = load_observed(index);
-    float n = float(pc.width * pc.height);
+    float n = pc.loss_pixels;
     if (LOSS == LOSS_MSE) {
         // Only called for the background (a = 0), where depth is not compared.
         vec4 d = blended(a - o);
@@ -113,7 +113,7 @@ vec3 loss_excess(uint index, vec4 a) {
     if (unknown(index)) return vec3(0.0);
     if (occluded(index, a)) return -loss_terms(index, vec4(0.0));
     vec4 o = load_observed(index);
-    float n = float(pc.width * pc.height);
+    float n = pc.loss_pixels;
     if (LOSS == LOSS_MSE) {
         // (a - o)^2 - o^2 = a (a - 2 o)
         float excess = dot(blended(a), blended(a - 2.0 * o)) / (n * float(mse_channels()));
@@ -128,7 +128,7 @@ vec3 loss_excess(uint index, vec4 a) {
 
 // dL/dA at one pixel, given the antialiased value A there (after the forward pass).
 vec4 loss_gradient(uint index, uint view) {
-    float n = float(pc.width * pc.height);
+    float n = pc.loss_pixels;
     vec4 a = load_antialiased(index);
     vec4 g = vec4(0.0);
     if (unknown(index) || occluded(index, a)) return g;
@@ -153,7 +153,7 @@ vec4 loss_gradient(uint index, uint view) {
 // listed pixel for the backward's fixed-point scale (diff_pass.glsl gradient_bounds).
 vec2 loss_magnitudes(uint index, vec4 a) {
     if (unknown(index) || occluded(index, a)) return vec2(0.0);
-    float n = float(pc.width * pc.height);
+    float n = pc.loss_pixels;
     vec4 o = load_observed(index);
     if (LOSS == LOSS_MSE) {
         vec4 d = abs(blended(a - o));

@@ -318,6 +318,7 @@ struct PassConstants {
     depth_scale: f32,
     depth_weight: f32,
     occlusion: f32,
+    loss_pixels: f32,
 }
 const _: () = assert!(shaders::CLASSIFY_COMP.takes::<PassConstants>());
 const _: () = assert!(shaders::ANTIALIAS_COMP.takes::<PassConstants>());
@@ -499,6 +500,11 @@ pub struct SceneDesc<'a> {
     /// Compare depth too (with the mse loss): the compared image gains a last channel,
     /// the rendered depth.
     pub depth: Option<ObservedDepth<'a>>,
+    /// The pixel count each view's loss is averaged over; None: the view's own (width x
+    /// height). A region of interest cut out of a larger image passes the larger image's,
+    /// so that its loss and gradients are the larger image's wherever nothing outside the
+    /// region adds to them (`register` cuts such regions).
+    pub loss_pixels: Option<u64>,
 }
 
 /// Device buffers of one differentiable scene: mesh, views, G-buffer, observation and
@@ -563,6 +569,8 @@ pub struct Scene {
     depth: Option<DepthLoss>,
     /// With depth and a mask: channel 0 is coverage, a constant attribute 1.
     coverage: bool,
+    /// The pixel count each view's loss is averaged over ([`SceneDesc::loss_pixels`]).
+    loss_pixels: u64,
 }
 
 /// Results of one evaluation, read back to the host.
@@ -646,6 +654,14 @@ impl Scene {
         let views = ViewBuffers::new(ctx, desc.views)?;
         let (w, h, n) = (views.width(), views.height(), views.count());
         let pixels = w as u64 * h as u64 * n as u64;
+        let loss_pixels = desc.loss_pixels.unwrap_or(w as u64 * h as u64);
+        if loss_pixels < w as u64 * h as u64 {
+            // The fixed-point sums' bound (stats_shift) holds for terms averaged over at
+            // least the image's pixels.
+            return Err(Error::InvalidInput(format!(
+                "the loss averaged over {loss_pixels} pixels: at least the view's {w}x{h}"
+            )));
+        }
         let vertices = desc.mesh.vertex_count() as u64;
         if desc.mesh.triangle_count() >= MAX_TRIANGLES {
             return Err(Error::Limit(format!(
@@ -812,6 +828,7 @@ impl Scene {
             background: device("background loss stats", n as u64 * 24)?,
             boxes: device("pixel boxes", box_words(n) * 4)?,
             stats_shift,
+            loss_pixels,
             work: device("work list", pixels * 4)?,
             pair_work_x: device("pairs along x", pixels * 4)?,
             pair_work_y: device("pairs along y", pixels * 4)?,
@@ -955,6 +972,7 @@ impl Scene {
             depth_scale: self.depth.map_or(1.0, |d| d.scale as f32),
             depth_weight: self.depth.map_or(0.0, |d| d.weight as f32),
             occlusion: self.depth.map_or(0.0, |d| d.occlusion as f32),
+            loss_pixels: self.loss_pixels as f32,
         }
     }
 

@@ -29,11 +29,14 @@ use crate::shape::ShapeSpace;
 use crate::{Camera, Pose};
 
 mod optimizer;
+mod region;
 
 pub use optimizer::Optimizer;
 use optimizer::{
     optimizer_coordinates, OptimizerConstants, Optimizers, StateLayout, BFGS_MAX_DIMS, MAX_DIMS,
 };
+use region::Cut;
+pub use region::Region;
 
 /// The most iterations (or alignment iterations) one registration may ask for.
 pub const MAX_ITERATIONS: usize = 100_000;
@@ -856,6 +859,42 @@ impl Registrar {
         first: usize,
         on_chunk: &mut impl FnMut(usize, f64),
     ) -> Result<Vec<Staged>> {
+        // Only the region around the mask and the jobs' silhouettes is rendered and
+        // compared where that is a small part of the image ([`Region`]); a stage whose fit
+        // ended at the region's border (where the whole image would have compared pixels
+        // the region has not) runs again on the whole image.
+        if let Some(region) = Region::of_interest(jobs)? {
+            let cut: Vec<Cut> = jobs.iter().map(|job| region.cut(job)).collect();
+            let cut_jobs: Vec<Job> = jobs.iter().zip(&cut).map(|(j, c)| c.job(j)).collect();
+            let staged = self.run_whole(
+                ctx, &cut_jobs, params, pose_only, codes, started, first, on_chunk,
+            )?;
+            if staged
+                .iter()
+                .zip(jobs)
+                .all(|(s, job)| region.holds(job, &s.result))
+            {
+                return Ok(staged);
+            }
+        }
+        self.run_whole(
+            ctx, jobs, params, pose_only, codes, started, first, on_chunk,
+        )
+    }
+
+    /// [`Registrar::run`] on the jobs' whole images.
+    #[allow(clippy::too_many_arguments)]
+    fn run_whole(
+        &self,
+        ctx: &Context,
+        jobs: &[Job],
+        params: &RegisterParams,
+        pose_only: bool,
+        codes: Option<&[Vec<f32>]>,
+        started: Instant,
+        first: usize,
+        on_chunk: &mut impl FnMut(usize, f64),
+    ) -> Result<Vec<Staged>> {
         if jobs.is_empty() {
             return Ok(Vec::new());
         }
@@ -1093,6 +1132,10 @@ pub struct Job<'a> {
     pub others: &'a [OtherView],
     /// Which way is up, where known (used when the pose is optimised).
     pub gravity: Option<Gravity>,
+    /// The pixel count each view's loss is averaged over (None: the view's own): a job
+    /// cut to a region of interest of a larger image keeps the larger image's
+    /// ([`SceneDesc::loss_pixels`]).
+    pub loss_pixels: Option<u64>,
 }
 
 impl<'a> Job<'a> {
@@ -1106,6 +1149,7 @@ impl<'a> Job<'a> {
             view,
             others: &[],
             gravity: None,
+            loss_pixels: None,
         }
     }
 
@@ -1212,6 +1256,7 @@ impl<'a> Task<'a> {
         let scene = Scene::new(
             ctx,
             &SceneDesc {
+                loss_pixels: job.loss_pixels,
                 mesh: &space.canonical,
                 views: &views,
                 loss: params.loss,

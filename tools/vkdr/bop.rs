@@ -7,6 +7,10 @@
 //! `mask/IMAGE_GT.png` (the whole object, hidden parts included) and `rgb/`. Image ids are
 //! written with six digits. Models are in millimetres.
 //!
+//! `cam_K` is in BOP's (OpenCV's) convention, pixel centres on integer coordinates; vkdr's
+//! [`Camera`] puts pixel (i, j)'s centre at (j + 0.5, i + 0.5), so reading adds half a
+//! pixel to the principal point and writing takes it off.
+//!
 //! Everything a frame needs is checked when it is read, and each problem names the file
 //! and the key.
 
@@ -184,7 +188,9 @@ pub fn read_scene(dir: &Path) -> Result<Vec<Frame>> {
             .map(|p| (p.0[0] as f64 * metres) as f32)
             .collect();
         check_depth_units(&depth, depth_scale, &depth_path)?;
-        let camera = Camera::new(k[0], k[4], k[2], k[5], width, height)
+        // BOP's cam_K puts pixel centres on integers (OpenCV); vkdr's camera puts pixel
+        // (i, j)'s centre at (j + 0.5, i + 0.5): the principal point moves by half a pixel.
+        let camera = Camera::new(k[0], k[4], k[2] + 0.5, k[5] + 0.5, width, height)
             .and_then(|c| c.validated())
             .with_context(|| format!("{at}: \"cam_K\""))?;
         let list = objects.as_array().with_context(|| {
@@ -335,7 +341,8 @@ pub fn write_frame(dir: &Path, frame: &Frame, depth_scale: f64) -> Result<()> {
     cameras.insert(
         key.clone(),
         serde_json::json!({
-            "cam_K": [c.fx, 0.0, c.cx, 0.0, c.fy, c.cy, 0.0, 0.0, 1.0],
+            // BOP's convention: pixel centres on integers (see `read_scene`).
+            "cam_K": [c.fx, 0.0, c.cx - 0.5, 0.0, c.fy, c.cy - 0.5, 0.0, 0.0, 1.0],
             "depth_scale": depth_scale,
         }),
     );

@@ -975,6 +975,7 @@ pub fn render_shading(
     let mut scene = Scene::new(
         ctx,
         &SceneDesc {
+            loss_pixels: None,
             mesh,
             views,
             loss: Loss::Mse,

@@ -713,6 +713,7 @@ pub fn category_space(
         "{category}: shape space from {} training instances",
         training.len()
     );
+    let up = vkdr_app::check::Info::read(dir)?.up;
     Ok(ShapeSpace::build(
         ctx,
         category,
@@ -721,7 +722,8 @@ pub fn category_space(
         settings.dims,
         &settings.cpd,
         |_, _, _| {},
-    )?)
+    )?
+    .with_up(up)?)
 }
 
 /// One test instance of a category.

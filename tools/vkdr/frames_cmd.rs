@@ -32,6 +32,10 @@ pub struct Args {
     /// OBJ in millimetres, "model_to_category": {"translation": [m], "rotation": [axis-angle]}}}.
     #[arg(long, required_unless_present = "merge")]
     categories: Option<PathBuf>,
+    /// Only these images: SCENE/IMAGE, comma-separated (e.g. 000000/1,000001/19); an
+    /// error where one is not in DIR.
+    #[arg(long, value_delimiter = ',')]
+    images: Vec<String>,
     /// Pose-noise registrations per object (each from its own seeded noisy start).
     #[arg(long, default_value_t = 3)]
     trials: usize,
@@ -138,6 +142,27 @@ pub fn run(args: &Args) -> Result<()> {
     let mut frames = Vec::new();
     for scene in bop::scene_dirs(dir)? {
         frames.extend(bop::read_scene(&scene)?);
+    }
+    if !args.images.is_empty() {
+        let name = |f: &Frame| format!("{}/{}", f.scene, f.image);
+        for wanted in &args.images {
+            let (scene, image) = wanted.split_once('/').unwrap_or(("", wanted));
+            let found = frames
+                .iter()
+                .any(|f| f.scene == scene && image.parse::<u64>().ok() == Some(f.image));
+            if !found {
+                bail!(
+                    "--images: {wanted} is not an image of {} (SCENE/IMAGE, as 000000/1)",
+                    dir.display()
+                );
+            }
+        }
+        frames.retain(|f| {
+            args.images.iter().any(|w| {
+                w.split_once('/')
+                    .is_some_and(|(s, i)| s == f.scene && i.parse::<u64>().ok() == Some(f.image))
+            }) || args.images.contains(&name(f))
+        });
     }
     let categories: Vec<PathBuf> = {
         let mut dirs: Vec<PathBuf> = map.values().map(|c| c.category.clone()).collect();

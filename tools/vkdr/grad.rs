@@ -64,6 +64,7 @@ pub fn mask_scene(
     Scene::new(
         ctx,
         &SceneDesc {
+            loss_pixels: None,
             mesh,
             views: &[view],
             loss,

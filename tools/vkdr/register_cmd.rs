@@ -96,9 +96,11 @@ pub struct Args {
     /// mug's handle; the cost: docs/evaluation.md).
     #[arg(long, default_value_t = vkdr_app::eval::EvalSettings::default().starts)]
     starts: usize,
-    /// The object's up axis for --starts and --gravity, in its own frame: x,y,z.
-    #[arg(long, default_value = "0,1,0")]
-    up: String,
+    /// The object's up axis for --starts and --gravity, in its own frame: x,y,z. Default:
+    /// the shape space's (its category's info.json up_axis), or y for a space that does
+    /// not carry one.
+    #[arg(long, allow_hyphen_values = true)]
+    up: Option<String>,
     /// With --optimize-pose: which way is up in the camera frame (the support plane's
     /// normal, away from it: x,y,z, with y down in the image), or `from-depth` to fit the
     /// plane the object stands on in the observed depth. The object's --up axis is kept
@@ -407,11 +409,27 @@ pub fn run(args: &Args) -> Result<()> {
     if args.starts > 1 && args.starts != default_starts && !args.optimize_pose {
         bail!("--starts turns the starting pose: give --optimize-pose too");
     }
-    let up = DVec3::from_array(parse_numbers::<3>(&args.up, "--up")?);
-    if !(up.is_finite() && up.length() > 0.0) {
-        bail!("--up must be a nonzero direction x,y,z, not {}", args.up);
-    }
     let space = ShapeSpace::load(&args.space)?;
+    let up = match &args.up {
+        Some(text) => {
+            let up = DVec3::from_array(parse_numbers::<3>(text, "--up")?);
+            if !(up.is_finite() && up.length() > 0.0) {
+                bail!("--up must be a nonzero direction x,y,z, not {text}");
+            }
+            up
+        }
+        None => {
+            let (up, known) = space.up_or_y();
+            if !known && (args.gravity.is_some() || args.optimize_pose) {
+                eprintln!(
+                    "note: {} carries no up axis (built before spaces kept their category's); \
+                     using y: give --up or rebuild it with shape-space",
+                    args.space.display()
+                );
+            }
+            up
+        }
+    };
     let view = args.view.view()?;
     let depth_loss = args.depth_loss.loss()?;
     let further = match &args.views {

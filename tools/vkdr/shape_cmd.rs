@@ -153,6 +153,8 @@ pub fn build(
             }
         },
     )?;
+    // The category's up axis travels with its space (register and eval-frames use it).
+    let space = space.with_up(vkdr_app::check::Info::read(dir)?.up)?;
     if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(parent)
             .with_context(|| format!("creating {}", parent.display()))?;

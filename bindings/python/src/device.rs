@@ -310,6 +310,7 @@ impl Device {
         let result = py.detach(|| {
             self.engine.run(|ctx, parts| {
                 let desc = SceneDesc {
+                    loss_pixels: None,
                     mesh: &mesh,
                     views: &[view],
                     loss,
@@ -382,6 +383,7 @@ impl Device {
         let others: Vec<OtherView> = further.iter().map(|f| f.other).collect();
         let looks = Looks::read_views(mask, depth, shading, ignore, camera, &further, &options)?;
         let space = space.get().inner.clone();
+        let options = options.for_space(&space);
         let progress = Progress::new(progress);
         let result = py.detach(|| {
             self.engine.run(|ctx, parts| {
@@ -444,6 +446,7 @@ impl Device {
             })
             .collect::<PyResult<_>>()?;
         let space = space.get().inner.clone();
+        let options = options.for_space(&space);
         let progress = Progress::new(progress);
         let results = py.detach(|| {
             self.engine.run(|ctx, parts| {
@@ -725,7 +728,9 @@ struct Options {
     optimizer: Option<Optimizer>,
     code_prior: Option<f64>,
     starts: Option<usize>,
+    /// The object's up axis: as given, else the shape space's ([`Options::for_space`]).
     up: DVec3,
+    up_given: bool,
     gravity: Option<GravityOption>,
     tilt_tolerance: f64,
     depth: DepthOptions,
@@ -751,6 +756,7 @@ impl Options {
             code_prior: None,
             starts: None,
             up: DVec3::Y,
+            up_given: false,
             gravity: None,
             tilt_tolerance: 1.0,
             depth: DepthOptions {
@@ -796,7 +802,10 @@ impl Options {
                     }
                 }
                 "starts" => options.starts = get!("a count of starts, 1 to 8"),
-                "up" => options.up = DVec3::from_array(get!("(x, y, z)")),
+                "up" => {
+                    options.up = DVec3::from_array(get!("(x, y, z)"));
+                    options.up_given = true;
+                }
                 "gravity" => {
                     options.gravity = if value.is_none() {
                         None
@@ -831,6 +840,18 @@ impl Options {
             ));
         }
         Ok(options)
+    }
+
+    /// The options for registrations of `space`: its category's up axis where `up` was not
+    /// given (y for a space that carries none).
+    fn for_space(self, space: &vkdr::shape::ShapeSpace) -> Self {
+        match self.up_given {
+            true => self,
+            false => Self {
+                up: space.up_or_y().0,
+                ..self
+            },
+        }
     }
 
     /// Starts: as given, else 5 with the pose free and 1 with it known.
