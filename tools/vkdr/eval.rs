@@ -332,6 +332,9 @@ pub struct EvalSettings {
     pub gravity: Option<GravitySource>,
     /// Radians of tilt from up that cost nothing ([`Gravity::tolerance`]).
     pub tilt_tolerance: f64,
+    /// Where gravity from the depth finds no support plane: register without gravity
+    /// (true; the trial says so) or fail the unit (false).
+    pub gravity_fallback: bool,
 }
 
 /// Where [`EvalSettings::gravity`] comes from.
@@ -526,6 +529,7 @@ impl Default for EvalSettings {
             test_scale: 1.0,
             gravity: None,
             tilt_tolerance: 1f64.to_radians(),
+            gravity_fallback: true,
         }
     }
 }
@@ -690,6 +694,25 @@ pub struct Trial {
     /// The angle (radians) between the up direction the registration was given and the
     /// true one (0 without gravity or with it known; the support plane's error from depth).
     pub gravity_error: f64,
+    /// Gravity from the depth was asked for and no support plane was found: the trial ran
+    /// without gravity ([`EvalSettings::gravity_fallback`]).
+    #[serde(default)]
+    pub gravity_fallback: bool,
+    /// The field's metrics ([`crate::metrics`]): ADD-S with the registered surface
+    /// (metres), ...
+    #[serde(default)]
+    pub add_s: f64,
+    /// ... the distance between the registered and the true surface's centroids in the
+    /// camera frame (metres), ...
+    #[serde(default)]
+    pub centroid_error: f64,
+    /// ... the rotation error as NOCS counts it (radians; up to the turns about the up
+    /// axis where the instance is symmetric or its asymmetric part is out of view), ...
+    #[serde(default)]
+    pub rotation_error_nocs: f64,
+    /// ... and the 3D IoU of the registered and the true oriented bounding boxes.
+    #[serde(default)]
+    pub iou: f64,
 }
 
 /// The angle between two directions, radians.
@@ -1076,8 +1099,59 @@ pub enum TrialSource<'a> {
     /// ways (occluder, table, depth noise and holes).
     Rendered,
     /// One observed frame (its true pose given), the same in every trial: the trials differ
-    /// in their pose noise.
-    Frame(&'a TrialScene),
+    /// in their pose noise; the registration with the pose known runs once. The model's
+    /// [`Reference`] is computed once for every frame that shows it.
+    Frame {
+        scene: &'a TrialScene,
+        reference: &'a Reference,
+    },
+}
+
+/// What one test model is measured against, the same in every frame that shows it: its
+/// surface sample, the oracle's code and vertices, and the space optimum from the
+/// oracle's code and the mean shape.
+#[derive(Clone, Debug)]
+pub struct Reference {
+    pub truth: Vec<DVec3>,
+    pub oracle_code: Vec<f64>,
+    pub oracle_vertices: Vec<DVec3>,
+    /// The least error found from the oracle's code and from the mean shape.
+    pub optimum: f64,
+}
+
+impl Reference {
+    /// The reference of `test` in `space`: a surface sample of [`SAMPLE_POINTS`] (seeded
+    /// by `seed`), CPD's oracle, and the space optimum; with `scale` other than 1 those of
+    /// the instance at its own size, scaled (where the scale is optimised the space with
+    /// a scale reaches exactly that).
+    pub fn of(
+        ctx: &Context,
+        space: &ShapeSpace,
+        test: &Mesh,
+        seed: u64,
+        cpd: &CpdParams,
+        scale: f64,
+    ) -> Result<Self> {
+        let truth = surface_sample(test, SAMPLE_POINTS, seed);
+        let unscaled: Vec<DVec3> = test.points().iter().map(|p| *p / scale).collect();
+        let oracle_code = space.oracle_code(ctx, &unscaled, cpd)?;
+        let oracle_vertices: Vec<DVec3> = space
+            .vertices(&oracle_code)?
+            .iter()
+            .map(|p| *p * scale)
+            .collect();
+        let unscaled_truth: Vec<DVec3> = truth.iter().map(|p| *p / scale).collect();
+        let mut optimum = f64::INFINITY;
+        for start in [oracle_code.clone(), vec![0.0; space.dims()]] {
+            optimum = optimum.min(space_optimum(space, &unscaled_truth, &start, 30)?.1);
+        }
+        Ok(Self {
+            truth,
+            oracle_code,
+            oracle_vertices,
+            optimum: optimum * scale,
+        })
+    }
 }
 
 /// A rendered trial: random views of `test` (and `table` under it) with the settings'
@@ -1208,17 +1282,22 @@ pub fn evaluate_instance(
     } else {
         None
     };
-    let truth = surface_sample(test, SAMPLE_POINTS, hash(name));
+    let computed;
+    let reference = match source {
+        TrialSource::Frame { reference, .. } => reference,
+        TrialSource::Rendered => {
+            computed = Reference::of(ctx, space, test, hash(name), &settings.cpd, floor_scale)?;
+            &computed
+        }
+    };
+    let Reference {
+        truth,
+        oracle_vertices,
+        ..
+    } = reference;
     let test_vertices = test.points();
     let (test_centre, test_size) = surface_extent(&test_vertices, test.triangles());
-    let unscaled: Vec<DVec3> = test_vertices.iter().map(|p| *p / floor_scale).collect();
-    let oracle_code = space.oracle_code(ctx, &unscaled, &settings.cpd)?;
-    let oracle_vertices: Vec<DVec3> = space
-        .vertices(&oracle_code)?
-        .iter()
-        .map(|p| *p * floor_scale)
-        .collect();
-    let error = |vertices: &[DVec3]| surface_error(&truth, vertices, space.canonical.triangles());
+    let error = |vertices: &[DVec3]| surface_error(truth, vertices, space.canonical.triangles());
     // The mean of the error both ways, test to shape (`forward`, already measured) and
     // shape to test.
     let both_ways = |vertices: &[DVec3], forward: f64| -> Result<f64> {
@@ -1229,7 +1308,14 @@ pub fn evaluate_instance(
     let (mut known_ch, mut noisy_ch) = (vec![], vec![]);
     let mut trials: Vec<Trial> = Vec::new();
     let axes = extent_axes(test);
-    let symmetric = symmetric_about(&truth, settings.up);
+    let symmetric = symmetric_about(truth, settings.up);
+    // Where the instance is not symmetric, whether a frame shows what breaks the symmetry
+    // (a mug's handle): the rotation then counts whole (NOCS), else up to the turns.
+    let asymmetric = match symmetric {
+        true => Vec::new(),
+        false => crate::metrics::asymmetric_points(truth, settings.up, 0.01 * test_size),
+    };
+    let mut known_once: Option<vkdr::register::Registration> = None;
     let mut from_truth = Vec::new();
     let (mut iterations, mut ms, mut noise_iterations, mut noise_ms) =
         (vec![], vec![], vec![], vec![]);
@@ -1254,11 +1340,13 @@ pub fn evaluate_instance(
             TrialSource::Rendered => {
                 render_trial(ctx, registrar, test, table.as_ref(), settings, &mut rng)?
             }
-            TrialSource::Frame(scene) => scene.clone(),
+            TrialSource::Frame { scene, .. } => scene.clone(),
         };
         let n = (view.camera.width * view.camera.height) as usize;
         let (mask, shaded, depth) = (observed.mask, observed.shaded, observed.depth);
         let true_up = pose.rotation_matrix() * settings.up;
+        let visible: Vec<f32> = mask[..n].iter().map(|&m| m.max(0.0)).collect();
+        let mut gravity_fallback = false;
         let gravity = match settings.gravity {
             None => None,
             Some(GravitySource::Known) => Some(true_up),
@@ -1266,10 +1354,14 @@ pub fn evaluate_instance(
                 let depth = depth.as_deref().ok_or_else(|| {
                     vkdr::Error::InvalidInput("gravity from the depth needs depth".into())
                 })?;
-                let visible: Vec<f32> = mask[..n].iter().map(|&m| m.max(0.0)).collect();
-                let plane =
-                    vkdr::support::fit_support_plane(&view.camera, &depth[..n], &visible, 0.5)?;
-                Some(plane.normal)
+                match vkdr::support::fit_support_plane(&view.camera, &depth[..n], &visible, 0.5) {
+                    Ok(plane) => Some(plane.normal),
+                    Err(_) if settings.gravity_fallback => {
+                        gravity_fallback = true;
+                        None
+                    }
+                    Err(e) => return Err(e),
+                }
             }
         }
         .map(|direction| Gravity {
@@ -1285,7 +1377,14 @@ pub fn evaluate_instance(
             ..Job::new(space, &mask, view)
         };
 
-        let result = registrar.register(ctx, job(view), &known_pose, |_, _| {})?;
+        // A frame is the same in every trial: its registration with the pose known once.
+        let result = match (&known_once, source) {
+            (Some(result), TrialSource::Frame { .. }) => result.clone(),
+            _ => registrar.register(ctx, job(view), &known_pose, |_, _| {})?,
+        };
+        if matches!(source, TrialSource::Frame { .. }) {
+            known_once = Some(result.clone());
+        }
         let known_error = error(&result.vertices);
         if best_known.as_ref().is_none_or(|(e, _)| known_error < *e) {
             best_known = Some((known_error, result.code.clone()));
@@ -1299,7 +1398,7 @@ pub fn evaluate_instance(
         accumulate_curve(
             &mut curve_known,
             space,
-            &truth,
+            truth,
             &result.codes,
             settings.trials,
         )?;
@@ -1336,6 +1435,21 @@ pub fn evaluate_instance(
         let (seen_centre, seen_size) = surface_extent(&seen, space.canonical.triangles());
         let pose_noise_seen = error(&seen);
         let registered_up = result.pose.rotation_matrix() * settings.up;
+        let symmetric_in_view = symmetric
+            || crate::metrics::seen_share(
+                &asymmetric,
+                pose,
+                &view.camera,
+                &visible,
+                depth.as_deref().map(|d| &d[..n]),
+            ) < 0.1;
+        let triangles = space.canonical.triangles();
+        let iou = crate::metrics::iou(
+            &crate::metrics::OrientedBox::of(&result.vertices, result.pose),
+            &crate::metrics::OrientedBox::of(&test_vertices, pose),
+            settings.up,
+            symmetric_in_view,
+        );
         trials.push(Trial {
             azimuth,
             elevation,
@@ -1343,7 +1457,7 @@ pub fn evaluate_instance(
             short_axis_angle: line_of_sight_angle(pose, axes[2]),
             known_pose: known_error,
             pose_noise: error(&result.vertices),
-            pose_noise_placed: error(&placed_like(&result.vertices, &oracle_vertices)),
+            pose_noise_placed: error(&placed_like(&result.vertices, oracle_vertices)),
             pose_noise_seen,
             pose_noise_seen_both_ways: both_ways(&seen, pose_noise_seen)?,
             known_pose_loss,
@@ -1359,6 +1473,22 @@ pub fn evaluate_instance(
             z_error_origin: result.pose.translation.z - pose.translation.z,
             scale: result.scale,
             gravity_error: gravity.map_or(0.0, |g| angle_between(g.direction, true_up)),
+            gravity_fallback,
+            add_s: crate::metrics::add_s(
+                &test_vertices,
+                pose,
+                &result.vertices,
+                triangles,
+                result.pose,
+            ),
+            centroid_error: (seen_centre - test_centre).length(),
+            rotation_error_nocs: crate::metrics::rotation_error(
+                result.pose,
+                pose,
+                settings.up,
+                symmetric_in_view,
+            ),
+            iou,
         });
         noisy_ch.push(chamfer(&test_vertices, &result.vertices));
         noise_iterations.push(result.iterations as f64);
@@ -1366,34 +1496,34 @@ pub fn evaluate_instance(
         accumulate_curve(
             &mut curve_noise,
             space,
-            &truth,
+            truth,
             &result.codes,
             settings.trials,
         )?;
     }
     progress(settings.trials, settings.trials);
+    // The space optimum from the reference's starts, and from the best known-pose
+    // registration's code (the least error the space reaches must not be above what a
+    // registration found).
     let unscaled_truth: Vec<DVec3> = truth.iter().map(|p| *p / floor_scale).collect();
-    let mut starts = vec![oracle_code.clone(), vec![0.0; space.dims()]];
-    starts.extend(best_known.map(|(_, code)| code));
-    let mut optimum = f64::INFINITY;
-    for start in &starts {
-        optimum = optimum.min(space_optimum(space, &unscaled_truth, start, 30)?.1);
+    let mut optimum = reference.optimum;
+    if let Some((_, code)) = best_known {
+        optimum = optimum.min(space_optimum(space, &unscaled_truth, &code, 30)?.1 * floor_scale);
     }
-    let optimum = optimum * floor_scale;
     let stat = |of: fn(&Trial) -> f64| Stat::of(&trials.iter().map(of).collect::<Vec<_>>());
-    let oracle = error(&oracle_vertices);
+    let oracle = error(oracle_vertices);
     Ok(Row {
         category: category.into(),
         instance: name.into(),
         oracle,
         space_optimum: optimum,
-        oracle_chamfer: chamfer(&test_vertices, &oracle_vertices),
+        oracle_chamfer: chamfer(&test_vertices, oracle_vertices),
         known_pose: stat(|t| t.known_pose),
         known_pose_chamfer: Stat::of(&known_ch),
         pose_noise_worst: trials.iter().map(|t| t.pose_noise).fold(0.0, f64::max),
         pose_noise_placed: stat(|t| t.pose_noise_placed),
         pose_noise_seen: stat(|t| t.pose_noise_seen),
-        oracle_both_ways: both_ways(&oracle_vertices, oracle)?,
+        oracle_both_ways: both_ways(oracle_vertices, oracle)?,
         pose_noise_seen_both_ways: stat(|t| t.pose_noise_seen_both_ways),
         pose_noise: stat(|t| t.pose_noise),
         pose_noise_chamfer: Stat::of(&noisy_ch),

@@ -30,7 +30,8 @@ pub struct Args {
     dir: Option<PathBuf>,
     /// The map from BOP obj_id to category: {"OBJ_ID": {"category": DIR, "model": PLY or
     /// OBJ in millimetres, "model_to_category": {"translation": [m], "rotation": [axis-angle]}}}.
-    #[arg(long, required_unless_present = "merge")]
+    /// Default: DIR/map.json.
+    #[arg(long)]
     categories: Option<PathBuf>,
     /// Only these images: SCENE/IMAGE, comma-separated (e.g. 000000/1,000001/19); an
     /// error where one is not in DIR.
@@ -47,9 +48,15 @@ pub struct Args {
     gravity: String,
     #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
     tilt_tolerance: f64,
-    /// Fit one uniform scale of the shape too (0.5 to 1.5): instances of their own size.
+    /// Where --gravity from-depth finds no support plane: register that frame without
+    /// gravity (none; its rows say so) or count it as failed (error).
+    #[arg(long, value_parser = ["none", "error"], default_value = "none")]
+    gravity_fallback: String,
+    /// Keep the shape's scale at the training set's. By default one uniform scale (0.5 to
+    /// 1.5) is fitted too, which the depth observes: a robot does not know the instance's
+    /// size.
     #[arg(long)]
-    optimize_scale: bool,
+    no_scale: bool,
     /// Dimensions of each category's shape space.
     #[arg(long, default_value_t = EvalSettings::default().dims)]
     dims: usize,
@@ -101,6 +108,7 @@ fn settings(args: &Args) -> Result<EvalSettings> {
         dims: args.dims,
         depth: Some(args.depth_loss.loss()?),
         tilt_tolerance: crate::args::tilt_tolerance(args.tilt_tolerance)?,
+        gravity_fallback: args.gravity_fallback == "none",
         gravity: match args.gravity.as_str() {
             "known" => Some(GravitySource::Known),
             "from-depth" => Some(GravitySource::FromDepth),
@@ -108,8 +116,8 @@ fn settings(args: &Args) -> Result<EvalSettings> {
         },
         ..Default::default()
     };
-    base.known_pose.optimize_scale = args.optimize_scale;
-    base.pose_noise.optimize_scale = args.optimize_scale;
+    base.known_pose.optimize_scale = !args.no_scale;
+    base.pose_noise.optimize_scale = !args.no_scale;
     Ok(base)
 }
 
@@ -123,47 +131,37 @@ struct Target<'a> {
 
 pub fn run(args: &Args) -> Result<()> {
     if let Some(merge) = &args.merge {
-        return shard::write_merged("eval-frames", &merge[0], &merge[1..], |line| {
-            settings(&<Flags as clap::Parser>::try_parse_from(line)?.args)
-        });
+        return shard::write_merged(
+            "eval-frames",
+            &merge[0],
+            &merge[1..],
+            |line| {
+                let run = <Flags as clap::Parser>::try_parse_from(line)?.args;
+                let frames = read_frames(&run)?;
+                let units = frames.iter().map(|f| f.objects.len()).sum();
+                Ok((settings(&run)?, describe(&frames, units)))
+            },
+            |out, rows, failures, (settings, frames), device| {
+                crate::frames_report::write(out, rows, failures, settings, frames, device)
+            },
+        );
     }
     let base = settings(args)?;
     let shard = args.shard.as_deref().map(shard::Shard::parse).transpose()?;
     shard::check_spaces(args.spaces.as_deref())?;
-    let (dir, map_file) = (
-        args.dir.as_deref().expect("clap requires DIR"),
-        args.categories
-            .as_deref()
-            .expect("clap requires --categories"),
-    );
+    let dir = args.dir.as_deref().expect("clap requires DIR");
+    let default_map = dir.join("map.json");
+    let map_file = args.categories.as_deref().unwrap_or(&default_map);
+    if !map_file.is_file() {
+        bail!(
+            "{}: no map from BOP obj_id to category; give --categories MAP",
+            map_file.display()
+        );
+    }
     let out = args.out();
     let map = bop::read_map(map_file)?;
     // Every frame is read and checked before any work.
-    let mut frames = Vec::new();
-    for scene in bop::scene_dirs(dir)? {
-        frames.extend(bop::read_scene(&scene)?);
-    }
-    if !args.images.is_empty() {
-        let name = |f: &Frame| format!("{}/{}", f.scene, f.image);
-        for wanted in &args.images {
-            let (scene, image) = wanted.split_once('/').unwrap_or(("", wanted));
-            let found = frames
-                .iter()
-                .any(|f| f.scene == scene && image.parse::<u64>().ok() == Some(f.image));
-            if !found {
-                bail!(
-                    "--images: {wanted} is not an image of {} (SCENE/IMAGE, as 000000/1)",
-                    dir.display()
-                );
-            }
-        }
-        frames.retain(|f| {
-            args.images.iter().any(|w| {
-                w.split_once('/')
-                    .is_some_and(|(s, i)| s == f.scene && i.parse::<u64>().ok() == Some(f.image))
-            }) || args.images.contains(&name(f))
-        });
-    }
+    let frames = read_frames(args)?;
     let categories: Vec<PathBuf> = {
         let mut dirs: Vec<PathBuf> = map.values().map(|c| c.category.clone()).collect();
         dirs.sort();
@@ -202,6 +200,7 @@ pub fn run(args: &Args) -> Result<()> {
         .iter()
         .map(|(id, entry)| Ok((*id, model_in_category(entry)?)))
         .collect::<Result<_>>()?;
+    let described = describe(&frames, targets.len());
     let ctx = Context::new()?;
     let device = format!("{} ({})", ctx.info().name, ctx.info().driver_info);
     let registrar = Registrar::new(&ctx)?;
@@ -238,7 +237,10 @@ pub fn run(args: &Args) -> Result<()> {
         file.write(out)?;
     }
     let mut spaces: BTreeMap<usize, ShapeSpace> = BTreeMap::new();
+    // Each model's reference (sample, oracle, space optimum), once for all its frames.
+    let mut references: BTreeMap<u64, eval::Reference> = BTreeMap::new();
     let mut placed = Vec::new();
+    let mut failures: Vec<String> = Vec::new();
     for unit in &units {
         let target = &targets[unit.category];
         let c = target.category;
@@ -257,6 +259,25 @@ pub fn run(args: &Args) -> Result<()> {
             }
         };
         let (category, up) = (&unit.category_name, checked[c].0);
+        let name = &unit.instance_name;
+        let obj_id = target.object.obj_id;
+        if let Entry::Vacant(slot) = references.entry(obj_id) {
+            eprint!("\r  obj_id {obj_id}: the model's oracle and space optimum ");
+            match eval::Reference::of(&ctx, space, &models[&obj_id], obj_id, &base.cpd, 1.0) {
+                Ok(reference) => {
+                    slot.insert(reference);
+                }
+                Err(e) => {
+                    eprintln!("\r  {name:<22} failed: {e:#}");
+                    failures.push(format!("{name} ({category}): the model's reference: {e:#}"));
+                    write_progress(
+                        out, &mut file, &placed, &failures, &base, &described, &device,
+                    )?;
+                    continue;
+                }
+            }
+        }
+        let reference = &references[&obj_id];
         let frame = target.frame;
         let pose = map[&target.object.obj_id]
             .model_to_category
@@ -268,19 +289,34 @@ pub fn run(args: &Args) -> Result<()> {
             up,
             ..base.clone()
         };
-        let scene = frame_scene(frame, target.object, pose)?;
-        let name = &unit.instance_name;
-        let row = eval::evaluate_instance(
-            &ctx,
-            &registrar,
-            space,
-            category,
-            name,
-            &models[&target.object.obj_id],
-            &settings,
-            TrialSource::Frame(&scene),
-            |done, total| eprint!("\r  {name:<22} trial {done}/{total}  "),
-        )?;
+        // A unit that fails is a row of the failures with its reason; the others go on.
+        let row = frame_scene(frame, target.object, pose).and_then(|scene| {
+            Ok(eval::evaluate_instance(
+                &ctx,
+                &registrar,
+                space,
+                category,
+                name,
+                &models[&obj_id],
+                &settings,
+                TrialSource::Frame {
+                    scene: &scene,
+                    reference,
+                },
+                |done, total| eprint!("\r  {name:<22} trial {done}/{total}  "),
+            )?)
+        });
+        let row = match row {
+            Ok(row) => row,
+            Err(e) => {
+                eprintln!("\r  {name:<22} failed: {e:#}");
+                failures.push(format!("{name} ({category}): {e:#}"));
+                write_progress(
+                    out, &mut file, &placed, &failures, &base, &described, &device,
+                )?;
+                continue;
+            }
+        };
         eprintln!(
             "\r  {name:<22} known pose {:.2} mm ({:.2}x the space optimum), pose noise as seen {:.2} mm",
             1e3 * row.known_pose.mean,
@@ -291,16 +327,9 @@ pub fn run(args: &Args) -> Result<()> {
             unit: unit.clone(),
             row,
         });
-        match &mut file {
-            Some(file) => {
-                file.rows = placed.clone();
-                file.write(out)?;
-            }
-            None => {
-                let rows: Vec<eval::Row> = placed.iter().map(|p| p.row.clone()).collect();
-                crate::eval_cmd::write_reports(out, &rows, &base, &device)?;
-            }
-        }
+        write_progress(
+            out, &mut file, &placed, &failures, &base, &described, &device,
+        )?;
     }
     match shard {
         Some(shard) => println!(
@@ -319,7 +348,103 @@ pub fn run(args: &Args) -> Result<()> {
             );
         }
     }
+    if !failures.is_empty() {
+        bail!(
+            "{} of {} units failed (every unit was tried; the rows and the failures are in {}):\n  {}",
+            failures.len(),
+            units.len(),
+            out.display(),
+            failures.join("\n  ")
+        );
+    }
     Ok(())
+}
+
+/// Writes what is done so far: the shard's file, or the tables with the failures.
+fn write_progress(
+    out: &Path,
+    file: &mut Option<shard::ShardFile>,
+    placed: &[shard::Placed],
+    failures: &[String],
+    base: &EvalSettings,
+    frames: &str,
+    device: &str,
+) -> Result<()> {
+    match file {
+        Some(file) => {
+            file.rows = placed.to_vec();
+            file.failures = failures.to_vec();
+            file.write(out)
+        }
+        None => {
+            let rows: Vec<eval::Row> = placed.iter().map(|p| p.row.clone()).collect();
+            crate::frames_report::write(out, &rows, failures, base, frames, device)
+        }
+    }
+}
+
+/// The frames of the run's DIR (every scene, checked), only `--images` where given.
+fn read_frames(args: &Args) -> Result<Vec<Frame>> {
+    let dir = args.dir.as_deref().expect("clap requires DIR");
+    let mut frames = Vec::new();
+    for scene in bop::scene_dirs(dir)? {
+        frames.extend(bop::read_scene(&scene)?);
+    }
+    if !args.images.is_empty() {
+        let name = |f: &Frame| format!("{}/{}", f.scene, f.image);
+        for wanted in &args.images {
+            let (scene, image) = wanted.split_once('/').unwrap_or(("", wanted));
+            let found = frames
+                .iter()
+                .any(|f| f.scene == scene && image.parse::<u64>().ok() == Some(f.image));
+            if !found {
+                bail!(
+                    "--images: {wanted} is not an image of {} (SCENE/IMAGE, as 000000/1)",
+                    dir.display()
+                );
+            }
+        }
+        frames.retain(|f| {
+            args.images.iter().any(|w| {
+                w.split_once('/')
+                    .is_some_and(|(s, i)| s == f.scene && i.parse::<u64>().ok() == Some(f.image))
+            }) || args.images.contains(&name(f))
+        });
+    }
+    Ok(frames)
+}
+
+/// What the frames are, in words: how many, of which scenes, their cameras (BOP's `cam_K`,
+/// pixel centres on integers) and sizes, and the depth.
+fn describe(frames: &[Frame], units: usize) -> String {
+    let mut scenes: Vec<&str> = frames.iter().map(|f| f.scene.as_str()).collect();
+    scenes.dedup();
+    let mut cameras: Vec<String> = frames
+        .iter()
+        .map(|f| {
+            let c = &f.camera;
+            format!(
+                "fx {:.1} fy {:.1} cx {:.1} cy {:.1}, {}x{} px",
+                c.fx,
+                c.fy,
+                c.cx - 0.5,
+                c.cy - 0.5,
+                c.width,
+                c.height
+            )
+        })
+        .collect();
+    cameras.sort();
+    cameras.dedup();
+    format!(
+        "{} images of BOP scene{} {} ({units} objects, each a unit); camera{} {} (cam_K as BOP gives it); \
+         the depth measured by the sensor (BOP depth images), its holes unknown",
+        frames.len(),
+        if scenes.len() > 1 { "s" } else { "" },
+        scenes.join(", "),
+        if cameras.len() > 1 { "s" } else { "" },
+        cameras.join("; ")
+    )
 }
 
 /// A frame's object's row name: SCENE/IMAGE/GT.
@@ -334,6 +459,15 @@ fn target_name(target: &Target) -> String {
 fn model_in_category(entry: &ObjectCategory) -> Result<Mesh> {
     let model = Mesh::load(&entry.model)
         .with_context(|| format!("the model of {}", entry.category.display()))?;
+    let (lo, hi) = model.bounds();
+    let extent = (0..3).map(|k| (hi[k] - lo[k]) as f64).fold(0.0, f64::max);
+    if extent < 1.0 {
+        bail!(
+            "{}: the model spans {extent:.3} units, under a millimetre: BOP models are in \
+             millimetres (is it in metres?)",
+            entry.model.display()
+        );
+    }
     let points: Vec<DVec3> = model
         .points()
         .iter()

@@ -6,4 +6,5 @@ pub mod bop;
 pub mod check;
 pub mod dataset;
 pub mod eval;
+pub mod metrics;
 pub mod plot;

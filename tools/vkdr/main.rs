@@ -10,6 +10,7 @@ mod dataset_cmd;
 mod demo_cmd;
 mod eval_cmd;
 mod frames_cmd;
+mod frames_report;
 mod grad;
 mod info_cmd;
 mod out;

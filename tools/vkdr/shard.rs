@@ -18,7 +18,7 @@ use anyhow::{bail, Context as _, Result};
 use serde::{Deserialize, Serialize};
 
 use vkdr_app::check::{Category, Role};
-use vkdr_app::eval::{EvalSettings, Row};
+use vkdr_app::eval::Row;
 
 /// The shard file's name in a shard's --out.
 pub const FILE: &str = "shard.json";
@@ -105,15 +105,16 @@ pub fn out_folder<'a>(merge: &'a Option<Vec<PathBuf>>, out: &'a Option<PathBuf>)
     }
 }
 
-/// Merges the shards of a `command` run in `dirs` and writes its tables into `out`;
-/// `settings_of` reads the run's settings back from its command line (the command, its
-/// flags and `--out`). An error when a category failed in a shard, after the others' rows
-/// are written.
-pub fn write_merged(
+/// Merges the shards of a `command` run in `dirs` and writes its tables into `out` with
+/// `write` (the rows, the failures, what `settings_of` read back from the run's command
+/// line: the command, its flags and `--out`; and the device). An error when a unit failed
+/// in a shard, after the tables are written.
+pub fn write_merged<S>(
     command: &str,
     out: &Path,
     dirs: &[PathBuf],
-    settings_of: impl FnOnce(Vec<String>) -> Result<EvalSettings>,
+    settings_of: impl FnOnce(Vec<String>) -> Result<S>,
+    write: impl FnOnce(&Path, &[Row], &[String], &S, &str) -> Result<()>,
 ) -> Result<()> {
     let merged = merge(command, dirs)?;
     let line: Vec<String> = std::iter::once(command.to_string())
@@ -121,18 +122,24 @@ pub fn write_merged(
         .chain(["--out".to_string(), out.display().to_string()])
         .collect();
     let settings = settings_of(line).context("the shards' flags")?;
-    if !merged.rows.is_empty() {
-        crate::eval_cmd::write_reports(out, &merged.rows, &settings, &merged.device)?;
+    write(
+        out,
+        &merged.rows,
+        &merged.failures,
+        &settings,
+        &merged.device,
+    )?;
+    if out.join("table.md").is_file() {
         print!("{}", std::fs::read_to_string(out.join("table.md"))?);
         println!(
-            "merged {} shards: wrote {}/table.md, table.csv, table.json, trials.csv, speed_vs_error.png",
+            "merged {} shards: wrote {}/table.md, table.json, trials.csv, speed_vs_error.png",
             dirs.len(),
             out.display()
         );
     }
     if !merged.failures.is_empty() {
         bail!(
-            "{} categories failed in the shards:\n  {}",
+            "{} units failed in the shards:\n  {}",
             merged.failures.len(),
             merged.failures.join("\n  ")
         );

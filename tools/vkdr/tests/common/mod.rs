@@ -40,7 +40,7 @@ pub fn table_without_times(out: &Path) -> serde_json::Value {
     fn strip(v: &mut serde_json::Value) {
         match v {
             serde_json::Value::Object(map) => {
-                map.retain(|k, _| k != "ms" && !k.ends_with("_ms"));
+                map.retain(|k, _| k != "ms" && !k.ends_with("_ms") && !k.starts_with("ms_"));
                 map.values_mut().for_each(strip);
             }
             serde_json::Value::Array(items) => items.iter_mut().for_each(strip),

@@ -1,0 +1,233 @@
+//! The field's pose metrics, for registrations of real frames next to vkdr's own errors:
+//! ADD-S with the registered surface in place of the model and its area under the
+//! accuracy curve up to 10 cm (PoseCNN's protocol on YCB-Video), rotation and translation
+//! thresholds (NOCS's 5 deg 2 cm, 5 deg 5 cm, 10 deg 5 cm, a mug symmetric where its
+//! handle is out of view), and the 3D IoU of oriented bounding boxes.
+//!
+//! Instance-level methods that publish these numbers know the exact model; vkdr registers
+//! a shape from its category's space, so its ADD-S holds the shape's error as well as the
+//! pose's.
+
+use glam::{DMat3, DVec3};
+
+use vkdr::camera::{Camera, Pose};
+
+use crate::eval::{surface_error, symmetric_rotation_error};
+
+/// The most model points ADD-S averages over (evenly strided).
+pub const ADD_S_POINTS: usize = 2000;
+/// The upper end of ADD-S's accuracy curve (PoseCNN: 10 cm).
+pub const AUC_LIMIT: f64 = 0.1;
+
+/// ADD-S with a registered surface in place of the model: the mean, over the test model's
+/// points (`model`, at most [`ADD_S_POINTS`] of them, in the object frame) at the true
+/// pose, of the distance to the registered surface (`vertices`, `triangles`) at the
+/// registered pose, metres.
+pub fn add_s(
+    model: &[DVec3],
+    truth: Pose,
+    vertices: &[DVec3],
+    triangles: &[[u32; 3]],
+    registered: Pose,
+) -> f64 {
+    let step = model.len().div_ceil(ADD_S_POINTS).max(1);
+    let seen: Vec<DVec3> = model
+        .iter()
+        .step_by(step)
+        .map(|p| truth.apply(*p))
+        .collect();
+    let placed: Vec<DVec3> = vertices.iter().map(|v| registered.apply(*v)).collect();
+    surface_error(&seen, &placed, triangles)
+}
+
+/// The area under ADD-S's accuracy curve (the share of trials below each threshold) from
+/// 0 to [`AUC_LIMIT`], in per cent: the mean over trials of max(0, 1 - ADD-S / limit).
+pub fn add_s_auc(errors: &[f64]) -> f64 {
+    if errors.is_empty() {
+        return f64::NAN;
+    }
+    100.0
+        * errors
+            .iter()
+            .map(|e| (1.0 - e / AUC_LIMIT).max(0.0))
+            .sum::<f64>()
+        / errors.len() as f64
+}
+
+/// The points of a surface sample (object frame) that break its symmetry about `up`
+/// through its centroid: those that, turned by 90 degrees, lie farther than `tolerance`
+/// from the sample (a mug's handle).
+pub fn asymmetric_points(points: &[DVec3], up: DVec3, tolerance: f64) -> Vec<DVec3> {
+    let centre = vkdr::mesh::centroid(points);
+    let turn = glam::DQuat::from_axis_angle(up.normalize(), std::f64::consts::FRAC_PI_2);
+    let nearest = |p: DVec3| {
+        points
+            .iter()
+            .map(|q| (p - *q).length_squared())
+            .fold(f64::MAX, f64::min)
+            .sqrt()
+    };
+    points
+        .iter()
+        .filter(|&&p| nearest(centre + turn * (p - centre)) > tolerance)
+        .copied()
+        .collect()
+}
+
+/// The share of `points` (object frame, at `pose`) that the frame shows: projected into
+/// `visible` (the mask of the object's seen pixels), with the depth there, where
+/// measured, within 1 cm of theirs.
+pub fn seen_share(
+    points: &[DVec3],
+    pose: Pose,
+    camera: &Camera,
+    visible: &[f32],
+    depth: Option<&[f32]>,
+) -> f64 {
+    if points.is_empty() {
+        return 0.0;
+    }
+    let seen = points
+        .iter()
+        .filter(|p| {
+            let c = pose.apply(**p);
+            if c.z <= 0.0 {
+                return false;
+            }
+            let (u, v) = camera.project(c);
+            if u < 0.0 || v < 0.0 || u >= camera.width as f64 || v >= camera.height as f64 {
+                return false;
+            }
+            let i = v as usize * camera.width as usize + u as usize;
+            let measured = depth.map_or(0.0, |d| d[i] as f64);
+            visible[i] > 0.0 && (measured <= 0.0 || (measured - c.z).abs() < 0.01)
+        })
+        .count();
+    seen as f64 / points.len() as f64
+}
+
+/// The rotation error as NOCS counts it: up to turns about `up` where the instance is
+/// symmetric about it or where the view does not show what breaks the symmetry
+/// (`symmetric_in_view`), else the whole rotation.
+pub fn rotation_error(estimate: Pose, truth: Pose, up: DVec3, symmetric_in_view: bool) -> f64 {
+    if symmetric_in_view {
+        symmetric_rotation_error(estimate, truth, up)
+    } else {
+        crate::eval::pose_error(estimate, truth).0
+    }
+}
+
+/// An oriented box: centre, axes (columns, unit) and half extents, metres.
+#[derive(Clone, Copy, Debug)]
+pub struct OrientedBox {
+    pub centre: DVec3,
+    pub axes: DMat3,
+    pub half: DVec3,
+}
+
+impl OrientedBox {
+    /// The box of `vertices` (object frame, axis-aligned there) placed by `pose`.
+    pub fn of(vertices: &[DVec3], pose: Pose) -> Self {
+        let (lo, hi) = vertices.iter().fold(
+            (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+            |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+        );
+        Self {
+            centre: pose.apply(0.5 * (lo + hi)),
+            axes: pose.rotation_matrix(),
+            half: 0.5 * (hi - lo),
+        }
+    }
+
+    /// The same box turned by `angle` about the axis `up` (object frame) through its centre.
+    pub fn turned(&self, up: DVec3, angle: f64) -> Self {
+        let turn = DMat3::from_axis_angle(up.normalize(), angle);
+        Self {
+            axes: self.axes * turn,
+            ..*self
+        }
+    }
+
+    fn volume(&self) -> f64 {
+        8.0 * self.half.x * self.half.y * self.half.z
+    }
+
+    fn contains(&self, p: DVec3) -> bool {
+        let local = self.axes.transpose() * (p - self.centre);
+        local.abs().cmple(self.half * (1.0 + 1e-12)).all()
+    }
+
+    /// Points on a regular `n` x `n` x `n` grid of cell centres inside the box.
+    fn grid(&self, n: usize) -> impl Iterator<Item = DVec3> + '_ {
+        (0..n * n * n).map(move |k| {
+            let (i, j, l) = (k % n, (k / n) % n, k / (n * n));
+            let unit = |i: usize| (2.0 * i as f64 + 1.0) / n as f64 - 1.0;
+            let local = DVec3::new(unit(i), unit(j), unit(l)) * self.half;
+            self.centre + self.axes * local
+        })
+    }
+}
+
+/// The 3D IoU of two oriented boxes, estimated on a 40^3 grid in each (the intersection's
+/// volume the mean of the two estimates; about 1% accurate).
+pub fn box_iou(a: &OrientedBox, b: &OrientedBox) -> f64 {
+    const N: usize = 40;
+    let (va, vb) = (a.volume(), b.volume());
+    if va <= 0.0 || vb <= 0.0 {
+        return 0.0;
+    }
+    let share = |from: &OrientedBox, to: &OrientedBox| {
+        from.grid(N).filter(|p| to.contains(*p)).count() as f64 / (N * N * N) as f64
+    };
+    let intersection = 0.5 * (share(a, b) * va + share(b, a) * vb);
+    intersection / (va + vb - intersection)
+}
+
+/// The 3D IoU of the registered box against the true one; for an instance symmetric in
+/// view, the largest over turns of the registered box about its up axis in 5-degree steps
+/// (NOCS turns symmetric objects' boxes so).
+pub fn iou(registered: &OrientedBox, truth: &OrientedBox, up: DVec3, symmetric: bool) -> f64 {
+    if !symmetric {
+        return box_iou(registered, truth);
+    }
+    (0..18)
+        .map(|k| box_iou(&registered.turned(up, (5.0 * k as f64).to_radians()), truth))
+        .fold(0.0, f64::max)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn box_iou_of_known_overlaps() {
+        let unit = OrientedBox {
+            centre: DVec3::ZERO,
+            axes: DMat3::IDENTITY,
+            half: DVec3::splat(0.5),
+        };
+        assert!((box_iou(&unit, &unit) - 1.0).abs() < 1e-9);
+        // Shifted by half its width along x: the intersection is half a box, IoU 1/3.
+        let shifted = OrientedBox {
+            centre: DVec3::new(0.5, 0.0, 0.0),
+            ..unit
+        };
+        assert!((box_iou(&unit, &shifted) - 1.0 / 3.0).abs() < 0.01);
+        // Turned 45 degrees about z: the intersection is the octagon's prism, area
+        // 2 (sqrt 2 - 1) = 0.828 of the square's 1, IoU 0.828 / 1.172 = 0.707.
+        let turned = unit.turned(DVec3::Z, std::f64::consts::FRAC_PI_4);
+        let expected = 0.8284 / (2.0 - 0.8284);
+        assert!((box_iou(&unit, &turned) - expected).abs() < 0.01);
+        let apart = OrientedBox {
+            centre: DVec3::new(2.0, 0.0, 0.0),
+            ..unit
+        };
+        assert_eq!(box_iou(&unit, &apart), 0.0);
+    }
+
+    #[test]
+    fn auc_counts_errors_up_to_ten_centimetres() {
+        assert_eq!(add_s_auc(&[0.0, 0.0]), 100.0);
+        assert!((add_s_auc(&[0.05, 0.2]) - 25.0).abs() < 1e-12);
+    }
+}
