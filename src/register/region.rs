@@ -81,9 +81,10 @@ fn silhouette_bounds(vertices: &[DVec3], view: &View) -> Option<Bounds> {
 impl Region {
     /// The region the registrations of `jobs` (one batch: one image size) need: the box of
     /// every job's observed object pixels and of its space's mean shape at its start, with
-    /// a margin of [`MARGIN_SHARE`] of its larger side and [`MARGIN_PIXELS`], within the
-    /// image. None where it would hold more than [`LARGEST_SHARE`] of the image, where a
-    /// job has further views, or where a start lies behind the camera.
+    /// a margin of a fifth of its larger side and 8 pixels (`MARGIN_SHARE`, `MARGIN_PIXELS`),
+    /// within the image. None where it would hold more than half the image
+    /// (`LARGEST_SHARE`), where a job has further views, or where a start lies behind the
+    /// camera.
     pub fn of_interest(jobs: &[Job]) -> Result<Option<Region>> {
         let Some(first) = jobs.first() else {
             return Ok(None);
