@@ -312,8 +312,22 @@ impl ShapeSpace {
         self.code_of_displacement(&displacement(&result, &c))
     }
 
-    /// Writes `path` (.npz) and `path.json`.
+    /// Writes `path` (.npz, which alone is enough to load) and `path.json` (its
+    /// description, for people).
     pub fn save(&self, path: &Path) -> Result<()> {
+        let arrays = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let (bytes, description) = self.to_bytes(&arrays)?;
+        write_atomically(path, &bytes)?;
+        write_atomically(&description_path(path), description.as_bytes())
+    }
+
+    /// The space as its `.npz` file's bytes (the description inside, as the array
+    /// `description` of its UTF-8 bytes) and the description alone (the `.npz.json` beside
+    /// it, for people to read); `arrays` names the `.npz` file in the description.
+    pub fn to_bytes(&self, arrays: &str) -> Result<(Vec<u8>, String)> {
         let m = self.canonical.vertex_count();
         let k = self.dims();
         let t = self.training_codes.len();
@@ -321,10 +335,31 @@ impl ShapeSpace {
         let flat = |rows: &[Vec<f64>], cols: usize| {
             Array2::from_shape_vec((rows.len(), cols), rows.concat()).map_err(err)
         };
+        let json = serde_json::json!({
+            "format_version": FORMAT_VERSION,
+            "category": self.category,
+            "vertices": m,
+            "faces": self.canonical.triangle_count(),
+            "dims": k,
+            "training_instances": t,
+            "training_names": self.training_names,
+            "beta": self.beta,
+            "explained_variance": self.explained_variance,
+            "up_axis": self.up.map(|u| u.to_array()),
+            "arrays": arrays,
+        });
+        let description = serde_json::to_string_pretty(&json)
+            .map_err(|e| Error::InvalidInput(e.to_string()))?
+            + "\n";
         let mut bytes = Vec::new();
         {
             let mut npz = ndarray_npy::NpzWriter::new(std::io::Cursor::new(&mut bytes));
-            let npz_err = |e: ndarray_npy::WriteNpzError| Error::format(path, e.to_string());
+            let npz_err = |e: ndarray_npy::WriteNpzError| Error::InvalidInput(e.to_string());
+            npz.add_array(
+                "description",
+                &Array1::from_vec(description.as_bytes().to_vec()),
+            )
+            .map_err(npz_err)?;
             let canonical: Vec<f64> = self
                 .canonical
                 .points()
@@ -379,30 +414,39 @@ impl ShapeSpace {
                 .map_err(npz_err)?;
             npz.finish().map_err(npz_err)?;
         }
-        write_atomically(path, &bytes)?;
-        let json = serde_json::json!({
-            "format_version": FORMAT_VERSION,
-            "category": self.category,
-            "vertices": m,
-            "faces": self.canonical.triangle_count(),
-            "dims": k,
-            "training_instances": t,
-            "training_names": self.training_names,
-            "beta": self.beta,
-            "explained_variance": self.explained_variance,
-            "up_axis": self.up.map(|u| u.to_array()),
-            "arrays": path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default(),
-        });
-        let json = serde_json::to_string_pretty(&json)
-            .map_err(|e| Error::InvalidInput(e.to_string()))?
-            + "\n";
-        write_atomically(&description_path(path), json.as_bytes())
+        Ok((bytes, description))
     }
 
     /// Loads and checks a saved space.
     pub fn load(path: &Path) -> Result<Self> {
-        let description = description_path(path);
-        let text = std::fs::read_to_string(&description).map_err(|e| Error::io(&description, e))?;
+        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        Self::from_bytes(bytes, path)
+    }
+
+    /// A space from its `.npz` file's bytes ([`ShapeSpace::to_bytes`]); one written before
+    /// the description was kept inside reads it from the `.npz.json` beside `path`, which
+    /// errors name.
+    pub fn from_bytes(bytes: Vec<u8>, path: &Path) -> Result<Self> {
+        crate::io::check_npz_sizes(&path.display().to_string(), &bytes)?;
+        let mut npz = ndarray_npy::NpzReader::new(std::io::Cursor::new(bytes))
+            .map_err(|e| Error::format(path, format!("not a readable .npz: {e}")))?;
+        let inside: Option<Vec<u8>> = npz
+            .by_name::<ndarray::OwnedRepr<u8>, ndarray::Ix1>("description")
+            .ok()
+            .map(|a| a.to_vec());
+        let (description, text) = match inside {
+            Some(text) => (
+                path.to_path_buf(),
+                String::from_utf8(text)
+                    .map_err(|_| Error::format(path, "description: not UTF-8"))?,
+            ),
+            None => {
+                let description = description_path(path);
+                let text = std::fs::read_to_string(&description)
+                    .map_err(|e| Error::io(&description, e))?;
+                (description, text)
+            }
+        };
         let json: serde_json::Value = serde_json::from_str(&text)
             .map_err(|e| Error::format(&description, format!("not JSON: {e}")))?;
         let version = json["format_version"]
@@ -414,10 +458,6 @@ impl ShapeSpace {
                 format!("format version {version}, this vkdr reads {FORMAT_VERSION}"),
             ));
         }
-        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-        crate::io::check_npz_sizes(&path.display().to_string(), &bytes)?;
-        let mut npz = ndarray_npy::NpzReader::new(std::io::Cursor::new(bytes))
-            .map_err(|e| Error::format(path, format!("not a readable .npz: {e}")))?;
         let bad = |what: &str| Error::format(path, what.to_string());
         let mut get2 = |name: &str| -> Result<Array2<f64>> {
             npz.by_name::<ndarray::OwnedRepr<f64>, ndarray::Ix2>(name)

@@ -117,6 +117,17 @@ fn round_trips_through_its_file_and_refuses_corrupt_ones() {
     );
     assert!(a.iter().zip(&b).all(|(p, q)| (*p - *q).length() < 1e-12));
 
+    // The .npz alone is the space (its description inside).
+    std::fs::rename(dir.join("bottle.npz.json"), dir.join("aside.json")).unwrap();
+    assert_eq!(ShapeSpace::load(&path).unwrap(), space);
+    // A file written before the description went inside: read with the .npz.json beside
+    // it, whose version and shapes are checked.
+    let bytes = std::fs::read(&path).unwrap();
+    std::fs::write(&path, without_description(&bytes)).unwrap();
+    assert!(ShapeSpace::load(&path).is_err(), "no description anywhere");
+    std::fs::rename(dir.join("aside.json"), dir.join("bottle.npz.json")).unwrap();
+    assert_eq!(ShapeSpace::load(&path).unwrap(), space);
+
     // A truncated archive.
     let bytes = std::fs::read(&path).unwrap();
     std::fs::write(&path, &bytes[..bytes.len() / 2]).unwrap();
@@ -142,6 +153,36 @@ fn round_trips_through_its_file_and_refuses_corrupt_ones() {
         "a code of the wrong length is an error"
     );
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The arrays of a space's .npz without its `description`, as files were written before it.
+fn without_description(bytes: &[u8]) -> Vec<u8> {
+    use ndarray::{Array1, Array2};
+    let mut npz = ndarray_npy::NpzReader::new(std::io::Cursor::new(bytes.to_vec())).unwrap();
+    let mut out = Vec::new();
+    {
+        let mut writer = ndarray_npy::NpzWriter::new(std::io::Cursor::new(&mut out));
+        for name in npz.names().unwrap() {
+            let name = name.trim_end_matches(".npy").to_string();
+            match name.as_str() {
+                "description" => {}
+                "canonical_faces" => {
+                    let a: Array2<u32> = npz.by_name(&name).unwrap();
+                    writer.add_array(name, &a).unwrap();
+                }
+                "beta" | "singular_values" | "explained_variance" => {
+                    let a: Array1<f64> = npz.by_name(&name).unwrap();
+                    writer.add_array(name, &a).unwrap();
+                }
+                _ => {
+                    let a: Array2<f64> = npz.by_name(&name).unwrap();
+                    writer.add_array(name, &a).unwrap();
+                }
+            }
+        }
+        writer.finish().unwrap();
+    }
+    out
 }
 
 /// A canonical of thousands of vertices (past where a dense M-step was feasible): the
@@ -205,7 +246,9 @@ fn the_space_optimum_finds_a_shape_of_the_space_and_never_loses_to_its_start() {
         &space.vertices(&zero).unwrap(),
         space.canonical.triangles(),
     );
-    let (code, error) = eval::space_optimum(&space, &truth, &zero, 30).unwrap();
+    let eval::Optimum { code, error, scale } =
+        eval::space_optimum(&space, &truth, &zero, 30, false).unwrap();
+    assert_eq!(scale, 1.0);
     assert!(
         error < 1e-4 * start,
         "error {error} m from {start} m (code {code:?}, truth {inside:?})"
@@ -216,6 +259,15 @@ fn the_space_optimum_finds_a_shape_of_the_space_and_never_loses_to_its_start() {
             "code {code:?}, truth {inside:?}"
         );
     }
+    // The same instance 1.2 times as large: the scale found with the code where it is free.
+    let larger: Vec<_> = truth.iter().map(|p| *p * 1.2).collect();
+    let free = eval::space_optimum(&space, &larger, &zero, 40, true).unwrap();
+    assert!(
+        (free.scale - 1.2).abs() < 1e-3 && free.error < 1e-3 * start,
+        "scale {}, error {} m from {start} m",
+        free.scale,
+        free.error
+    );
     // A training instance (not in the space exactly): never worse than its oracle code.
     let oracle = &space.training_codes[0];
     let target = space.canonical.with_points(&train[0].1).unwrap();
@@ -225,7 +277,9 @@ fn the_space_optimum_finds_a_shape_of_the_space_and_never_loses_to_its_start() {
         &space.vertices(oracle).unwrap(),
         space.canonical.triangles(),
     );
-    let (_, error) = eval::space_optimum(&space, &truth, oracle, 30).unwrap();
+    let error = eval::space_optimum(&space, &truth, oracle, 30, false)
+        .unwrap()
+        .error;
     assert!(
         error <= at_oracle,
         "optimum {error} m, oracle {at_oracle} m"

@@ -96,7 +96,19 @@ pub struct RegisterParams {
     /// Relative improvement over a chunk below which a registration stops, in
     /// `[0, 1)`.
     pub plateau: f64,
+    /// The pixels across the object a single view is rendered and compared at, at least:
+    /// an object larger in its image is rendered at a coarser whole step (each pixel the
+    /// mean of step x step of the image's, [`Region`]), which costs a step squared fewer
+    /// pixels. 0 (the default): the image's own pixels, where the loss and gradients are
+    /// exactly the whole image's. The schedules use [`DETAIL`].
+    pub detail: u32,
 }
+
+/// The detail of the registration schedules ([`RegisterParams::detail`]): an object over
+/// 128 pixels across is rendered at a step of 2 or more. On a real 640 x 480 frame (a mug
+/// 230 pixels across, a step of 3) a registration from pose noise costs a third of the
+/// full resolution's, its error within 1% (docs/evaluation.md).
+pub const DETAIL: u32 = 64;
 
 impl RegisterParams {
     /// An error naming the first parameter out of range: 1 to [`MAX_ITERATIONS`]
@@ -147,6 +159,11 @@ impl RegisterParams {
             ))
         } else if !(0.0..1.0).contains(&self.plateau) {
             Some(format!("plateau {} must be in [0, 1)", self.plateau))
+        } else if self.detail != 0 && self.detail < 16 {
+            Some(format!(
+                "detail {} must be 0 (the image's pixels) or at least 16 pixels",
+                self.detail
+            ))
         } else {
             None
         };
@@ -187,12 +204,13 @@ impl RegisterParams {
 impl RegisterParams {
     /// The schedule `vkdr register` and `vkdr eval` use with the pose known, for views of
     /// `pixels` pixels: 30 BFGS iterations of the code, the prior those pixels imply
-    /// ([`observation_prior`]).
+    /// ([`observation_prior`]), a large object rendered at [`DETAIL`].
     pub fn known_pose(pixels: usize) -> Self {
         Self {
             iterations: 30,
             optimizer: Optimizer::Bfgs,
             code_prior: observation_prior(pixels),
+            detail: DETAIL,
             ..Self::default()
         }
     }
@@ -242,6 +260,7 @@ impl Default for RegisterParams {
             optimize_scale: false,
             check_every: 10,
             plateau: 1e-4,
+            detail: 0,
         }
     }
 }
@@ -862,20 +881,30 @@ impl Registrar {
         // Only the region around the mask and the jobs' silhouettes is rendered and
         // compared where that is a small part of the image ([`Region`]); a stage whose fit
         // ended at the region's border (where the whole image would have compared pixels
-        // the region has not) runs again on the whole image.
-        if let Some(region) = Region::of_interest(jobs)? {
-            let cut: Vec<Cut> = jobs.iter().map(|job| region.cut(job)).collect();
+        // the region has not) runs again on the whole image, at the region's step.
+        let Some(region) = Region::of_interest(jobs, params.detail)? else {
+            return self.run_whole(
+                ctx, jobs, params, pose_only, codes, started, first, on_chunk,
+            );
+        };
+        let cut: Vec<Cut> = jobs.iter().map(|job| region.cut(job)).collect();
+        let cut_jobs: Vec<Job> = jobs.iter().zip(&cut).map(|(j, c)| c.job(j)).collect();
+        let staged = self.run_whole(
+            ctx, &cut_jobs, params, pose_only, codes, started, first, on_chunk,
+        )?;
+        if staged
+            .iter()
+            .zip(jobs)
+            .all(|(s, job)| region.holds(job, &s.result))
+        {
+            return Ok(staged);
+        }
+        if let Some(whole) = Region::whole(&jobs[0].view.camera, region.step) {
+            let cut: Vec<Cut> = jobs.iter().map(|job| whole.cut(job)).collect();
             let cut_jobs: Vec<Job> = jobs.iter().zip(&cut).map(|(j, c)| c.job(j)).collect();
-            let staged = self.run_whole(
+            return self.run_whole(
                 ctx, &cut_jobs, params, pose_only, codes, started, first, on_chunk,
-            )?;
-            if staged
-                .iter()
-                .zip(jobs)
-                .all(|(s, job)| region.holds(job, &s.result))
-            {
-                return Ok(staged);
-            }
+            );
         }
         self.run_whole(
             ctx, jobs, params, pose_only, codes, started, first, on_chunk,
@@ -1467,7 +1496,7 @@ fn relative_turns(jobs: &[Job]) -> Vec<DMat3> {
 /// points that land farther than 1.5 times the median distance from it (a handle) left out.
 /// Iterated closest points on at most 1000 vertices; the two turns' opposite biases along
 /// the turn (the nearest vertex lies behind or ahead of a turned one) cancel.
-fn symmetry_pivot(vertices: &[DVec3], axis: DVec3) -> DVec3 {
+pub fn symmetry_pivot(vertices: &[DVec3], axis: DVec3) -> DVec3 {
     let step = vertices.len().div_ceil(1000).max(1);
     let points: Vec<DVec3> = vertices.iter().step_by(step).copied().collect();
     let axis = axis.normalize();

@@ -13,6 +13,7 @@ use glam::DVec3;
 
 use super::{Job, Registration};
 use crate::error::Result;
+use crate::loss::UNKNOWN;
 use crate::raster::View;
 use crate::Camera;
 
@@ -26,7 +27,8 @@ const LARGEST_SHARE: f64 = 0.5;
 /// been clipped there: it runs again on the whole image.
 const BORDER: f64 = 2.0;
 
-/// A rectangle of a view's pixels: columns `x..x + width`, rows `y..y + height`.
+/// A rectangle of a view's pixels: columns `x..x + width`, rows `y..y + height`, rendered
+/// with one pixel per `step` x `step` of the image's (`width` and `height` multiples of it).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Region {
     /// The first column.
@@ -37,6 +39,8 @@ pub struct Region {
     pub width: u32,
     /// Rows.
     pub height: u32,
+    /// The image's pixels per region pixel along each axis (1: the image's own).
+    pub step: u32,
 }
 
 /// A box of image coordinates.
@@ -62,6 +66,25 @@ impl Bounds {
     fn is_empty(&self) -> bool {
         !(self.lo.0 <= self.hi.0 && self.lo.1 <= self.hi.1)
     }
+
+    /// The larger side.
+    fn side(&self) -> f64 {
+        (self.hi.0 - self.lo.0).max(self.hi.1 - self.lo.1)
+    }
+}
+
+/// The span `lo..hi` of an axis of `limit` pixels widened to whole steps (on the high
+/// side, or the low one at the image's edge): its start and length; None where empty or
+/// where the image is too short.
+fn whole_steps(lo: u32, hi: u32, step: u32, limit: u32) -> Option<(u32, u32)> {
+    if hi <= lo {
+        return None;
+    }
+    let length = (hi - lo).div_ceil(step) * step;
+    if length > limit {
+        return None;
+    }
+    Some((lo.min(limit - length), length))
 }
 
 /// The image box of `vertices` (object frame) at `pose` through `camera`; None where one
@@ -82,10 +105,13 @@ impl Region {
     /// The region the registrations of `jobs` (one batch: one image size) need: the box of
     /// every job's observed object pixels and of its space's mean shape at its start, with
     /// a margin of a fifth of its larger side and 8 pixels (`MARGIN_SHARE`, `MARGIN_PIXELS`),
-    /// within the image. None where it would hold more than half the image
+    /// within the image. Where the object (the larger of the mask's box and a start's
+    /// silhouette box) spans more than `detail` pixels (and `detail` is not 0), the region
+    /// is rendered at the coarsest whole step that keeps at least `detail` across it. None
+    /// where it would be the image's own pixels and hold more than half of them
     /// (`LARGEST_SHARE`), where a job has further views, or where a start lies behind the
     /// camera.
-    pub fn of_interest(jobs: &[Job]) -> Result<Option<Region>> {
+    pub fn of_interest(jobs: &[Job], detail: u32) -> Result<Option<Region>> {
         let Some(first) = jobs.first() else {
             return Ok(None);
         };
@@ -98,27 +124,35 @@ impl Region {
         }
         let (w, h) = (camera.width as usize, camera.height as usize);
         let mut bounds = Bounds::empty();
+        let mut object: f64 = 0.0;
         for job in jobs {
+            let mut mask = Bounds::empty();
             for (i, &m) in job.observed[..w * h].iter().enumerate() {
                 if m > 0.0 {
-                    bounds.add(((i % w) as f64, (i / w) as f64));
-                    bounds.add(((i % w) as f64 + 1.0, (i / w) as f64 + 1.0));
+                    mask.add(((i % w) as f64, (i / w) as f64));
+                    mask.add(((i % w) as f64 + 1.0, (i / w) as f64 + 1.0));
                 }
             }
             let mean = job.space.vertices(&vec![0.0; job.space.dims()])?;
-            match silhouette_bounds(&mean, &job.view) {
-                Some(start) if !start.is_empty() => {
-                    bounds.add(start.lo);
-                    bounds.add(start.hi);
-                }
+            let start = match silhouette_bounds(&mean, &job.view) {
+                Some(start) if !start.is_empty() => start,
                 _ => return Ok(None),
+            };
+            for b in [mask, start].iter().filter(|b| !b.is_empty()) {
+                object = object.max(b.side());
+                bounds.add(b.lo);
+                bounds.add(b.hi);
             }
         }
         if bounds.is_empty() {
             return Ok(None);
         }
-        let side = (bounds.hi.0 - bounds.lo.0).max(bounds.hi.1 - bounds.lo.1);
-        let margin = MARGIN_SHARE * side + MARGIN_PIXELS;
+        let step = if detail == 0 {
+            1
+        } else {
+            ((object / detail as f64).floor() as u32).max(1)
+        };
+        let margin = MARGIN_SHARE * bounds.side() + MARGIN_PIXELS;
         let clamp = |v: f64, limit: usize| v.clamp(0.0, limit as f64) as u32;
         let (x0, x1) = (
             clamp((bounds.lo.0 - margin).floor(), w),
@@ -128,26 +162,49 @@ impl Region {
             clamp((bounds.lo.1 - margin).floor(), h),
             clamp((bounds.hi.1 + margin).ceil(), h),
         );
-        let (width, height) = (x1.saturating_sub(x0), y1.saturating_sub(y0));
-        if width == 0 || height == 0 || (width * height) as f64 > LARGEST_SHARE * (w * h) as f64 {
+        let (Some((x, width)), Some((y, height))) = (
+            whole_steps(x0, x1, step, camera.width),
+            whole_steps(y0, y1, step, camera.height),
+        ) else {
+            return Ok(None);
+        };
+        if step == 1 && (width * height) as f64 > LARGEST_SHARE * (w * h) as f64 {
             return Ok(None);
         }
         Ok(Some(Region {
-            x: x0,
-            y: y0,
+            x,
+            y,
             width,
             height,
+            step,
         }))
     }
 
+    /// The whole image of `camera` at a `step` above 1 (its last columns and rows dropped
+    /// where its size is not a multiple of the step); None at a step of 1.
+    pub fn whole(camera: &Camera, step: u32) -> Option<Region> {
+        let (width, height) = (camera.width / step * step, camera.height / step * step);
+        (step > 1 && width > 0 && height > 0).then_some(Region {
+            x: 0,
+            y: 0,
+            width,
+            height,
+            step,
+        })
+    }
+
     /// The camera of the region of `camera`'s image: the principal point moved by its
-    /// corner, so that its pixel (i, j) is the image's (i + y, j + x).
+    /// corner and the focal lengths divided by the step, so that its pixel (i, j) covers
+    /// the image's (y + step i .. y + step (i + 1), x + step j .. x + step (j + 1)).
     pub fn camera(&self, camera: &Camera) -> Camera {
+        let step = self.step as f64;
         Camera {
-            cx: camera.cx - self.x as f64,
-            cy: camera.cy - self.y as f64,
-            width: self.width,
-            height: self.height,
+            fx: camera.fx / step,
+            fy: camera.fy / step,
+            cx: (camera.cx - self.x as f64) / step,
+            cy: (camera.cy - self.y as f64) / step,
+            width: self.width / self.step,
+            height: self.height / self.step,
             ..*camera
         }
     }
@@ -162,17 +219,81 @@ impl Region {
         out
     }
 
-    /// `job`'s images cut to the region.
+    /// The region's pixels of an observation `[row][column]` of `width` columns, each the
+    /// mean of its step x step image pixels: a mask's unknown where most of them are
+    /// ([`UNKNOWN`]), else the share of the known ones that show the object; shading the
+    /// mean of the known ones; depth the mean measurement of the object's pixels (of all
+    /// measured ones where none shows the object; 0 where none is measured).
+    fn coarse(&self, job: &Job) -> Cut {
+        let width = job.view.camera.width as usize;
+        let s = self.step as usize;
+        let (cw, ch) = (
+            (self.width / self.step) as usize,
+            (self.height / self.step) as usize,
+        );
+        let mut observed = Vec::with_capacity(cw * ch);
+        let mut shaded = job.shaded.map(|_| Vec::with_capacity(cw * ch));
+        let mut depth = job.depth.map(|_| Vec::with_capacity(cw * ch));
+        for i in 0..ch {
+            for j in 0..cw {
+                let (y, x) = (self.y as usize + i * s, self.x as usize + j * s);
+                let pixels = (y..y + s).flat_map(|r| (x..x + s).map(move |c| r * width + c));
+                let known: Vec<usize> =
+                    pixels.clone().filter(|&p| job.observed[p] >= 0.0).collect();
+                let mean = |image: &[f32], of: &[usize]| {
+                    of.iter().map(|&p| image[p] as f64).sum::<f64>() / of.len().max(1) as f64
+                };
+                observed.push(if 2 * known.len() < s * s {
+                    UNKNOWN
+                } else {
+                    mean(job.observed, &known) as f32
+                });
+                if let (Some(out), Some(image)) = (shaded.as_mut(), job.shaded) {
+                    out.push(mean(image, &known) as f32);
+                }
+                if let (Some(out), Some(image)) = (depth.as_mut(), job.depth) {
+                    let measured: Vec<usize> = pixels.filter(|&p| image[p] > 0.0).collect();
+                    let on_object: Vec<usize> = measured
+                        .iter()
+                        .copied()
+                        .filter(|&p| job.observed[p] > 0.0)
+                        .collect();
+                    let of = if on_object.is_empty() {
+                        &measured
+                    } else {
+                        &on_object
+                    };
+                    out.push(mean(image, of) as f32);
+                }
+            }
+        }
+        Cut {
+            observed,
+            shaded,
+            depth,
+            camera: self.camera(&job.view.camera),
+            loss_pixels: 0,
+        }
+    }
+
+    /// `job`'s images cut to the region (and averaged over its steps).
     pub(super) fn cut(&self, job: &Job) -> Cut {
         let width = job.view.camera.width;
+        let whole = job
+            .loss_pixels
+            .unwrap_or(job.view.camera.width as u64 * job.view.camera.height as u64);
+        if self.step > 1 {
+            return Cut {
+                loss_pixels: (whole / (self.step as u64 * self.step as u64)).max(1),
+                ..self.coarse(job)
+            };
+        }
         Cut {
             observed: self.crop(job.observed, width),
             shaded: job.shaded.map(|s| self.crop(s, width)),
             depth: job.depth.map(|d| self.crop(d, width)),
             camera: self.camera(&job.view.camera),
-            loss_pixels: job
-                .loss_pixels
-                .unwrap_or(job.view.camera.width as u64 * job.view.camera.height as u64),
+            loss_pixels: whole,
         }
     }
 
@@ -219,5 +340,83 @@ impl Cut {
             loss_pixels: Some(self.loss_pixels),
             ..*job
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::Pose;
+
+    /// A 12 x 8 view, a mask of 0s and 1s with an unknown 2 x 2 block and a partly unknown
+    /// one, and depth on the object's pixels and the background's.
+    #[test]
+    fn a_coarse_region_averages_its_steps() {
+        let space = crate::shape::random_space(&mut crate::rng::Rng::new(1), 3, 2);
+        let camera = Camera::new(100.0, 90.0, 6.0, 4.0, 12, 8).unwrap();
+        let (w, h) = (12usize, 8usize);
+        let mut observed = vec![0.0f32; w * h];
+        let mut depth = vec![0.0f32; w * h];
+        for i in 0..h {
+            for j in 0..w {
+                let object = (2..7).contains(&j) && (1..6).contains(&i);
+                observed[i * w + j] = object as u8 as f32;
+                depth[i * w + j] = if object { 1.0 + 0.01 * j as f32 } else { 2.0 };
+            }
+        }
+        for p in [8, 9, w + 8, w + 9] {
+            observed[p] = UNKNOWN;
+        }
+        observed[4 * w + 10] = UNKNOWN;
+        depth[2 * w + 2] = 0.0;
+        let pose = Pose::new([0.0, 0.0, 1.0], [0.0; 3]).unwrap();
+        let job = Job::new(&space, &observed, View { camera, pose }).with_depth(&depth);
+        let region = Region {
+            x: 2,
+            y: 0,
+            width: 10,
+            height: 8,
+            step: 2,
+        };
+        let cut = region.cut(&job);
+        let coarse = cut.job(&job);
+        assert_eq!(
+            (coarse.view.camera.width, coarse.view.camera.height),
+            (5, 4)
+        );
+        assert_eq!(coarse.loss_pixels, Some((w * h / 4) as u64));
+        // A point through the centre of the image's block of rows 2-3 and columns 6-7
+        // projects to the centre of the region's pixel (1, 2).
+        let p = DVec3::new((7.0 - 6.0) / 100.0, (3.0 - 4.0) / 90.0, 1.0);
+        let (u, v) = coarse.view.camera.project(p);
+        assert!(
+            (u - 2.5).abs() < 1e-12 && (v - 1.5).abs() < 1e-12,
+            "{u} {v}"
+        );
+        let at = |i: usize, j: usize| coarse.observed[i * 5 + j];
+        // Rows 0-1, columns 2-3: two object pixels of four.
+        assert_eq!(at(0, 0), 0.5);
+        // Rows 0-1, columns 8-9: all unknown; rows 4-5, columns 10-11: one of four.
+        assert_eq!(at(0, 3), UNKNOWN);
+        assert_eq!(at(2, 4), 0.0);
+        // Rows 2-3, columns 2-3: all object, one without depth: the others' mean.
+        assert_eq!(at(1, 0), 1.0);
+        let d = coarse.depth.unwrap();
+        assert!((d[5] - (1.02 + 1.03 + 1.03) / 3.0).abs() < 1e-6, "{}", d[5]);
+        // Rows 2-3, columns 6-7: object in column 6 only: its depth, not the background's.
+        assert!((d[5 + 2] - 1.06).abs() < 1e-6, "{}", d[7]);
+        // Rows 6-7: background only.
+        assert_eq!(d[15], 2.0);
+    }
+
+    #[test]
+    fn the_whole_image_at_a_step_drops_the_remainder() {
+        let camera = Camera::new(100.0, 100.0, 6.5, 4.5, 13, 9).unwrap();
+        let whole = Region::whole(&camera, 2).unwrap();
+        assert_eq!((whole.width, whole.height, whole.step), (12, 8, 2));
+        assert_eq!(Region::whole(&camera, 1), None);
+        assert_eq!(whole_steps(3, 8, 2, 13), Some((3, 6)));
+        assert_eq!(whole_steps(8, 13, 2, 13), Some((7, 6)));
+        assert_eq!(whole_steps(0, 13, 2, 13), None);
     }
 }

@@ -62,6 +62,11 @@ pub struct Args {
     /// timed against one start.
     #[arg(long, default_value_t = eval::EvalSettings::default().starts)]
     pub starts: usize,
+    /// Render an object over twice this many pixels across at a coarser step (as `vkdr
+    /// eval` and `register` do, at 64); 0, the default: the image's own pixels (the device
+    /// passes are always timed there).
+    #[arg(long, default_value_t = 0)]
+    pub detail: u32,
     /// Reuse the space.npz of an earlier run with the same category, subdivision and seed.
     #[arg(long)]
     pub space: Option<PathBuf>,
@@ -216,6 +221,7 @@ pub fn run(args: &Args) -> Result<()> {
     params.depth = args.depth.then(DepthLoss::default);
     params.optimize_z = args.depth || args.views > 1;
     params.check_every = args.iterations; // no plateau stop: every run does all iterations
+    params.detail = args.detail;
     params.code_prior = vkdr::register::observation_prior((width * height) as usize);
     if !(1..=8).contains(&args.starts) {
         bail!("--starts must be 1 to 8, not {}", args.starts);
@@ -321,7 +327,7 @@ pub fn run(args: &Args) -> Result<()> {
         "# vkdr bench-register\n\nDevice: {device}.\n\
          One registration of a {category} ({m} vertices, {faces} triangles, {dims}-dimensional space) from a {w}x{h} mask{observed} with pose noise \
          (+-{tn} cm, +-{rn:.0} deg), the schedule of `vkdr eval`: {align} iterations aligning the pose alone, then {it} of pose and shape \
-         ({optimizer}), seed {seed}.\n\n\
+         ({optimizer}), seed {seed}; {detail}.\n\n\
          | measure | value |\n|---|---|\n\
          | registration, wall (median of {reps}, set-up included) | {wall:.1} ms |\n\
          | per iteration, wall | {per_iteration:.2} ms |\n\
@@ -360,6 +366,10 @@ pub fn run(args: &Args) -> Result<()> {
         it = args.iterations,
         align = params.align,
         optimizer = params.optimizer.name(),
+        detail = match args.detail {
+            0 => "rendered at the image's pixels".to_string(),
+            d => format!("an object over {} pixels across rendered at a coarser step (detail {d})", 2 * d),
+        },
         seed = args.seed,
         reps = args.repeats,
         deform = pass.deform,
@@ -398,6 +408,7 @@ pub fn run(args: &Args) -> Result<()> {
         "width": width,
         "height": height,
         "iterations": args.iterations,
+        "detail": args.detail,
         "wall_ms": walls,
         "wall_ms_median": wall,
         "passes_ms": {

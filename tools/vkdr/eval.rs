@@ -15,6 +15,7 @@
 use glam::{DMat3, DVec3};
 
 use crate::dataset::Rng;
+use crate::surface::Surface;
 use vkdr::camera::{Camera, Pose};
 use vkdr::cpd::linalg::{self, Matrix};
 use vkdr::cpd::CpdParams;
@@ -44,72 +45,14 @@ fn nearest(p: DVec3, points: &[DVec3]) -> f64 {
         .sqrt()
 }
 
-/// The closest point to `p` on triangle `abc` (Ericson, Real-Time Collision Detection 5.1.5).
-fn closest_on_triangle(p: DVec3, a: DVec3, b: DVec3, c: DVec3) -> DVec3 {
-    let (ab, ac, ap) = (b - a, c - a, p - a);
-    let (d1, d2) = (ab.dot(ap), ac.dot(ap));
-    if d1 <= 0.0 && d2 <= 0.0 {
-        return a;
-    }
-    let bp = p - b;
-    let (d3, d4) = (ab.dot(bp), ac.dot(bp));
-    if d3 >= 0.0 && d4 <= d3 {
-        return b;
-    }
-    let vc = d1 * d4 - d3 * d2;
-    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        return a + d1 / (d1 - d3) * ab;
-    }
-    let cp = p - c;
-    let (d5, d6) = (ab.dot(cp), ac.dot(cp));
-    if d6 >= 0.0 && d5 <= d6 {
-        return c;
-    }
-    let vb = d5 * d2 - d1 * d6;
-    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        return a + d2 / (d2 - d6) * ac;
-    }
-    let va = d3 * d6 - d5 * d4;
-    if va <= 0.0 && d4 - d3 >= 0.0 && d5 - d6 >= 0.0 {
-        return b + (d4 - d3) / ((d4 - d3) + (d5 - d6)) * (c - b);
-    }
-    let denom = 1.0 / (va + vb + vc);
-    a + ab * (vb * denom) + ac * (vc * denom)
-}
-
 /// The error: mean over `points` of the distance to the surface of the mesh with
 /// `vertices` and `triangles` (its nearest point on any triangle).
 pub fn surface_error(points: &[DVec3], vertices: &[DVec3], triangles: &[[u32; 3]]) -> f64 {
     if points.is_empty() || triangles.is_empty() {
         return f64::NAN;
     }
-    points
-        .iter()
-        .map(|&p| {
-            triangles
-                .iter()
-                .map(|t| {
-                    let [a, b, c] = t.map(|i| vertices[i as usize]);
-                    (closest_on_triangle(p, a, b, c) - p).length_squared()
-                })
-                .fold(f64::MAX, f64::min)
-                .sqrt()
-        })
-        .sum::<f64>()
-        / points.len() as f64
-}
-
-/// The triangle of `vertices` / `triangles` nearest to `p`, and its nearest point there.
-fn closest_on_mesh(p: DVec3, vertices: &[DVec3], triangles: &[[u32; 3]]) -> (usize, DVec3) {
-    let mut best = (0, DVec3::splat(f64::INFINITY));
-    for (t, tri) in triangles.iter().enumerate() {
-        let [a, b, c] = tri.map(|i| vertices[i as usize]);
-        let q = closest_on_triangle(p, a, b, c);
-        if (q - p).length_squared() < (best.1 - p).length_squared() {
-            best = (t, q);
-        }
-    }
-    best
+    let surface = Surface::new(vertices, triangles);
+    points.iter().map(|&p| surface.distance(p)).sum::<f64>() / points.len() as f64
 }
 
 /// Barycentric weights of `q` (a point of the triangle's plane) in triangle a, b, c.
@@ -126,40 +69,71 @@ fn barycentric(q: DVec3, a: DVec3, b: DVec3, c: DVec3) -> [f64; 3] {
     [1.0 - v - w, v, w]
 }
 
-/// The code whose deformed canonical is nearest to the surface sample `truth` by the
-/// reported error itself ([`surface_error`]; the object frame, so the pose is known): the
-/// best the shape space can do, with which to judge registration where the paper-style
-/// oracle (a fit to CPD's deformation) is not the best fit.
+/// The least error a shape space reaches for a surface ([`space_optimum`]).
+#[derive(Clone, Debug)]
+pub struct Optimum {
+    pub code: Vec<f64>,
+    /// The uniform scale of the deformed canonical (1 unless the scale was free).
+    pub scale: f64,
+    pub error: f64,
+}
+
+/// The code (and with `free_scale` the uniform scale, within
+/// [`vkdr::register::SCALE_RANGE`]) whose deformed canonical is nearest to the surface
+/// sample `truth` by the reported error itself ([`surface_error`]; the object frame, so
+/// the pose is known): the best the shape space can do, with which to judge registration
+/// where the paper-style oracle (a fit to CPD's deformation) is not the best fit.
 ///
 /// Levenberg-Marquardt on the distances: each point's distance to the surface is
 /// linearised through its nearest point (moving with its triangle's corners, its
 /// direction the gradient of the distance), weighted by 1 / distance (iteratively
 /// reweighted least squares: the sum of distances, not of their squares, is what is
 /// minimised), and a step is kept only where the error falls; otherwise the damping grows.
-/// Started at `start`, at most `iterations` evaluations of the error, so the result is
-/// never worse than the start. Returns the code and its error.
+/// Started at `start` (and scale 1), at most `iterations` evaluations of the error, so the
+/// result is never worse than the start.
 pub fn space_optimum(
     space: &ShapeSpace,
     truth: &[DVec3],
     start: &[f64],
     iterations: usize,
-) -> Result<(Vec<f64>, f64)> {
+    free_scale: bool,
+) -> Result<Optimum> {
     let triangles = space.canonical.triangles();
     let k = space.dims();
-    let error_of = |code: &[f64]| -> Result<f64> {
-        Ok(surface_error(truth, &space.vertices(code)?, triangles))
+    // The parameters: the code, then the scale where it is free.
+    let n = k + free_scale as usize;
+    let (lowest, highest) = vkdr::register::SCALE_RANGE;
+    let scale_of = |x: &[f64]| if free_scale { x[k] } else { 1.0 };
+    let shape = |x: &[f64]| -> Result<Vec<DVec3>> {
+        let scale = scale_of(x);
+        Ok(space
+            .vertices(&x[..k])?
+            .into_iter()
+            .map(|v| v * scale)
+            .collect())
     };
-    let mut best = (start.to_vec(), error_of(start)?);
+    let error_of = |x: &[f64]| -> Result<f64> { Ok(surface_error(truth, &shape(x)?, triangles)) };
+    let mut first = start.to_vec();
+    if free_scale {
+        first.push(1.0);
+    }
+    let mut best = (first.clone(), error_of(&first)?);
     let mut damping = 1e-3;
     let mut evaluations = 0;
     while evaluations < iterations && best.1 > 0.0 {
-        // The weighted normal equations at the best code.
-        let vertices = space.vertices(&best.0)?;
-        let mut normal = Matrix::zeros(k, k);
-        let mut gradient = vec![0.0; k];
+        // The weighted normal equations at the best parameters.
+        let vertices = shape(&best.0)?;
+        let scale = scale_of(&best.0);
+        let mut normal = Matrix::zeros(n, n);
+        let mut gradient = vec![0.0; n];
         let floor = 1e-2 * best.1;
+        let surface = Surface::new(&vertices, triangles);
         for &p in truth {
-            let (t, q) = closest_on_mesh(p, &vertices, triangles);
+            let (t, q) = surface.closest(p).ok_or_else(|| {
+                vkdr::error::Error::InvalidInput(
+                    "the shape space's canonical has no triangles".into(),
+                )
+            })?;
             let tri = triangles[t];
             let [a, b, c] = tri.map(|i| vertices[i as usize]);
             let r = q - p;
@@ -171,23 +145,28 @@ pub fn space_optimum(
                 (b - a).cross(c - a).normalize_or_zero()
             };
             let weights = barycentric(q, a, b, c);
-            // d distance / d s_j: the triangle's corners moved by basis j, mixed by the
-            // weights, seen along the direction.
-            let row: Vec<f64> = (0..k)
+            // d distance / d s_j: the triangle's corners moved by basis j (times the
+            // scale), mixed by the weights, seen along the direction; d distance / d scale:
+            // the point moved by q / scale.
+            let mut row: Vec<f64> = (0..k)
                 .map(|j| {
                     let basis = &space.deformation_basis[j];
                     (0..3)
                         .map(|corner| {
                             let v = 3 * tri[corner] as usize;
                             weights[corner]
+                                * scale
                                 * direction.dot(DVec3::new(basis[v], basis[v + 1], basis[v + 2]))
                         })
                         .sum()
                 })
                 .collect();
+            if free_scale {
+                row.push(direction.dot(q / scale));
+            }
             let w = 1.0 / distance.max(floor);
-            for i in 0..k {
-                for j in 0..k {
+            for i in 0..n {
+                for j in 0..n {
                     normal.set(i, j, normal.at(i, j) + w * row[i] * row[j]);
                 }
                 gradient[i] += w * distance * row[i];
@@ -197,35 +176,49 @@ pub fn space_optimum(
         let mut improved = false;
         while evaluations < iterations && !improved {
             let mut damped = normal.clone();
-            let trace = (0..k).map(|i| normal.at(i, i)).sum::<f64>() / k as f64;
-            for i in 0..k {
+            let trace = (0..n).map(|i| normal.at(i, i)).sum::<f64>() / n as f64;
+            for i in 0..n {
                 damped.set(i, i, normal.at(i, i) * (1.0 + damping) + 1e-12 * trace);
             }
-            let mut rhs = Matrix::zeros(k, 1);
-            for i in 0..k {
+            let mut rhs = Matrix::zeros(n, 1);
+            for i in 0..n {
                 rhs.set(i, 0, -gradient[i]);
             }
             let step = linalg::solve(damped, rhs)?;
-            let code: Vec<f64> = (0..k).map(|i| best.0[i] + step.at(i, 0)).collect();
-            let error = error_of(&code)?;
+            let mut x: Vec<f64> = (0..n).map(|i| best.0[i] + step.at(i, 0)).collect();
+            if free_scale {
+                x[k] = x[k].clamp(lowest, highest);
+            }
+            let error = error_of(&x)?;
             evaluations += 1;
             if error < best.1 {
                 improved = true;
                 damping = (damping / 3.0).max(1e-9);
                 let gain = best.1 - error;
-                best = (code, error);
+                best = (x, error);
                 if gain <= 1e-5 * best.1 {
-                    return Ok(best);
+                    return Ok(optimum(best, k, free_scale));
                 }
             } else {
                 damping *= 4.0;
                 if damping > 1e12 {
-                    return Ok(best);
+                    return Ok(optimum(best, k, free_scale));
                 }
             }
         }
     }
-    Ok(best)
+    Ok(optimum(best, k, free_scale))
+}
+
+/// [`space_optimum`]'s parameters and error as an [`Optimum`].
+fn optimum((mut x, error): (Vec<f64>, f64), k: usize, free_scale: bool) -> Optimum {
+    let scale = if free_scale { x[k] } else { 1.0 };
+    x.truncate(k);
+    Optimum {
+        code: x,
+        scale,
+        error,
+    }
 }
 
 /// `n` points drawn uniformly (by area) on the surface of `mesh`, seeded.
@@ -1117,13 +1110,23 @@ pub struct Reference {
     pub oracle_vertices: Vec<DVec3>,
     /// The least error found from the oracle's code and from the mean shape.
     pub optimum: f64,
+    /// Whether the optimum's scale was free.
+    pub free_scale: bool,
+    /// Whether `truth` is symmetric about the up axis ([`symmetric_about`]).
+    pub symmetric: bool,
+    /// Where it is not, the points of `truth` that break the symmetry (a mug's handle,
+    /// [`crate::metrics::asymmetric_points`]).
+    pub asymmetric: Vec<DVec3>,
 }
 
 impl Reference {
     /// The reference of `test` in `space`: a surface sample of [`SAMPLE_POINTS`] (seeded
     /// by `seed`), CPD's oracle, and the space optimum; with `scale` other than 1 those of
     /// the instance at its own size, scaled (where the scale is optimised the space with
-    /// a scale reaches exactly that).
+    /// a scale reaches exactly that); with `free_scale` the optimum's scale is free too
+    /// (a registration that fits the scale is judged against that); what breaks its
+    /// symmetry about `up`.
+    #[allow(clippy::too_many_arguments)]
     pub fn of(
         ctx: &Context,
         space: &ShapeSpace,
@@ -1131,8 +1134,18 @@ impl Reference {
         seed: u64,
         cpd: &CpdParams,
         scale: f64,
+        free_scale: bool,
+        up: DVec3,
     ) -> Result<Self> {
         let truth = surface_sample(test, SAMPLE_POINTS, seed);
+        let symmetric = symmetric_about(&truth, up);
+        let asymmetric = match symmetric {
+            true => Vec::new(),
+            false => {
+                let size = surface_extent(&test.points(), test.triangles()).1;
+                crate::metrics::asymmetric_points(&truth, up, 0.01 * size)
+            }
+        };
         let unscaled: Vec<DVec3> = test.points().iter().map(|p| *p / scale).collect();
         let oracle_code = space.oracle_code(ctx, &unscaled, cpd)?;
         let oracle_vertices: Vec<DVec3> = space
@@ -1143,13 +1156,17 @@ impl Reference {
         let unscaled_truth: Vec<DVec3> = truth.iter().map(|p| *p / scale).collect();
         let mut optimum = f64::INFINITY;
         for start in [oracle_code.clone(), vec![0.0; space.dims()]] {
-            optimum = optimum.min(space_optimum(space, &unscaled_truth, &start, 30)?.1);
+            optimum =
+                optimum.min(space_optimum(space, &unscaled_truth, &start, 30, free_scale)?.error);
         }
         Ok(Self {
             truth,
             oracle_code,
             oracle_vertices,
             optimum: optimum * scale,
+            free_scale,
+            symmetric,
+            asymmetric,
         })
     }
 }
@@ -1286,15 +1303,27 @@ pub fn evaluate_instance(
     let reference = match source {
         TrialSource::Frame { reference, .. } => reference,
         TrialSource::Rendered => {
-            computed = Reference::of(ctx, space, test, hash(name), &settings.cpd, floor_scale)?;
+            computed = Reference::of(
+                ctx,
+                space,
+                test,
+                hash(name),
+                &settings.cpd,
+                floor_scale,
+                false,
+                settings.up,
+            )?;
             &computed
         }
     };
     let Reference {
         truth,
         oracle_vertices,
+        symmetric,
+        asymmetric,
         ..
     } = reference;
+    let symmetric = *symmetric;
     let test_vertices = test.points();
     let (test_centre, test_size) = surface_extent(&test_vertices, test.triangles());
     let error = |vertices: &[DVec3]| surface_error(truth, vertices, space.canonical.triangles());
@@ -1308,13 +1337,6 @@ pub fn evaluate_instance(
     let (mut known_ch, mut noisy_ch) = (vec![], vec![]);
     let mut trials: Vec<Trial> = Vec::new();
     let axes = extent_axes(test);
-    let symmetric = symmetric_about(truth, settings.up);
-    // Where the instance is not symmetric, whether a frame shows what breaks the symmetry
-    // (a mug's handle): the rotation then counts whole (NOCS), else up to the turns.
-    let asymmetric = match symmetric {
-        true => Vec::new(),
-        false => crate::metrics::asymmetric_points(truth, settings.up, 0.01 * test_size),
-    };
     let mut known_once: Option<vkdr::register::Registration> = None;
     let mut from_truth = Vec::new();
     let (mut iterations, mut ms, mut noise_iterations, mut noise_ms) =
@@ -1437,7 +1459,7 @@ pub fn evaluate_instance(
         let registered_up = result.pose.rotation_matrix() * settings.up;
         let symmetric_in_view = symmetric
             || crate::metrics::seen_share(
-                &asymmetric,
+                asymmetric,
                 pose,
                 &view.camera,
                 &visible,
@@ -1508,7 +1530,10 @@ pub fn evaluate_instance(
     let unscaled_truth: Vec<DVec3> = truth.iter().map(|p| *p / floor_scale).collect();
     let mut optimum = reference.optimum;
     if let Some((_, code)) = best_known {
-        optimum = optimum.min(space_optimum(space, &unscaled_truth, &code, 30)?.1 * floor_scale);
+        optimum = optimum.min(
+            space_optimum(space, &unscaled_truth, &code, 30, reference.free_scale)?.error
+                * floor_scale,
+        );
     }
     let stat = |of: fn(&Trial) -> f64| Stat::of(&trials.iter().map(of).collect::<Vec<_>>());
     let oracle = error(oracle_vertices);

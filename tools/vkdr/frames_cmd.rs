@@ -60,6 +60,10 @@ pub struct Args {
     /// Dimensions of each category's shape space.
     #[arg(long, default_value_t = EvalSettings::default().dims)]
     dims: usize,
+    /// Render an object over twice this many pixels across at a coarser step (each pixel
+    /// the mean of the image's step x step); 0: at the image's own pixels.
+    #[arg(long, default_value_t = vkdr::register::DETAIL)]
+    detail: u32,
     #[command(flatten)]
     depth_loss: DepthLossArgs,
     #[command(flatten)]
@@ -118,6 +122,8 @@ fn settings(args: &Args) -> Result<EvalSettings> {
     };
     base.known_pose.optimize_scale = !args.no_scale;
     base.pose_noise.optimize_scale = !args.no_scale;
+    base.known_pose.detail = args.detail;
+    base.pose_noise.detail = args.detail;
     Ok(base)
 }
 
@@ -263,7 +269,9 @@ pub fn run(args: &Args) -> Result<()> {
         let obj_id = target.object.obj_id;
         if let Entry::Vacant(slot) = references.entry(obj_id) {
             eprint!("\r  obj_id {obj_id}: the model's oracle and space optimum ");
-            match eval::Reference::of(&ctx, space, &models[&obj_id], obj_id, &base.cpd, 1.0) {
+            let model = &models[&obj_id];
+            let free_scale = base.pose_noise.optimize_scale;
+            match eval::Reference::of(&ctx, space, model, obj_id, &base.cpd, 1.0, free_scale, up) {
                 Ok(reference) => {
                     slot.insert(reference);
                 }

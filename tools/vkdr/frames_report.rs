@@ -42,7 +42,7 @@ pub fn write(
          Frames: {frames}. Device: {device}.\n\n\
          Registration: from each frame's visible mask (pixels hidden by objects in front unknown) and its depth; \
          {} trials per unit (seed {}), each from the true pose disturbed by +-{:.0} cm in x and y and +-{:.0} deg about each axis, \
-         {} starts turned about the category's up axis; the shape's scale {}; {gravity}; \
+         {} starts turned about the category's up axis; the shape's scale {}; {gravity}; {}; \
          the pose known: one registration per unit. Shape spaces of up to {} dimensions from each category's training instances.\n\n\
          Errors (mm): known pose: the mean distance from {} points on the test model's surface to the registered surface, with the pose known; \
          as seen: the same for the registration from pose noise, each surface at its pose (camera frame); \
@@ -63,6 +63,13 @@ pub fn write(
             "fitted (one uniform scale, from the depth)"
         } else {
             "fixed at the training set's"
+        },
+        match noisy.detail {
+            0 => "rendered and compared at the frame's pixels".to_string(),
+            d => format!(
+                "an object over {} pixels across rendered and compared at a coarser step (at least {d} pixels across it, each pixel the mean of the frame's)",
+                2 * d
+            ),
         },
         settings.dims,
         vkdr_app::eval::SAMPLE_POINTS,

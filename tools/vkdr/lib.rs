@@ -8,3 +8,4 @@ pub mod dataset;
 pub mod eval;
 pub mod metrics;
 pub mod plot;
+pub mod surface;
