@@ -315,42 +315,44 @@ impl ShapeSpace {
     /// Writes `path` (.npz, which alone is enough to load) and `path.json` (its
     /// description, for people).
     pub fn save(&self, path: &Path) -> Result<()> {
-        let arrays = path
+        let bytes = self.to_bytes()?;
+        write_atomically(path, &bytes)?;
+        let mut description = self.description();
+        description["arrays"] = path
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let (bytes, description) = self.to_bytes(&arrays)?;
-        write_atomically(path, &bytes)?;
-        write_atomically(&description_path(path), description.as_bytes())
+            .unwrap_or_default()
+            .into();
+        write_atomically(&description_path(path), pretty(&description)?.as_bytes())
     }
 
-    /// The space as its `.npz` file's bytes (the description inside, as the array
-    /// `description` of its UTF-8 bytes) and the description alone (the `.npz.json` beside
-    /// it, for people to read); `arrays` names the `.npz` file in the description.
-    pub fn to_bytes(&self, arrays: &str) -> Result<(Vec<u8>, String)> {
-        let m = self.canonical.vertex_count();
-        let k = self.dims();
-        let t = self.training_codes.len();
-        let err = |e: ndarray::ShapeError| Error::InvalidInput(e.to_string());
-        let flat = |rows: &[Vec<f64>], cols: usize| {
-            Array2::from_shape_vec((rows.len(), cols), rows.concat()).map_err(err)
-        };
-        let json = serde_json::json!({
+    /// The description of the space: format version, category, shapes, training names,
+    /// beta, explained variance, up axis.
+    fn description(&self) -> serde_json::Value {
+        serde_json::json!({
             "format_version": FORMAT_VERSION,
             "category": self.category,
-            "vertices": m,
+            "vertices": self.canonical.vertex_count(),
             "faces": self.canonical.triangle_count(),
-            "dims": k,
-            "training_instances": t,
+            "dims": self.dims(),
+            "training_instances": self.training_codes.len(),
             "training_names": self.training_names,
             "beta": self.beta,
             "explained_variance": self.explained_variance,
             "up_axis": self.up.map(|u| u.to_array()),
-            "arrays": arrays,
-        });
-        let description = serde_json::to_string_pretty(&json)
-            .map_err(|e| Error::InvalidInput(e.to_string()))?
-            + "\n";
+        })
+    }
+
+    /// The space as its `.npz` file's bytes, the description inside (the array
+    /// `description`, its UTF-8 JSON): the same bytes for the same space wherever saved.
+    pub fn to_bytes(&self) -> Result<Vec<u8>> {
+        let m = self.canonical.vertex_count();
+        let k = self.dims();
+        let err = |e: ndarray::ShapeError| Error::InvalidInput(e.to_string());
+        let flat = |rows: &[Vec<f64>], cols: usize| {
+            Array2::from_shape_vec((rows.len(), cols), rows.concat()).map_err(err)
+        };
+        let description = pretty(&self.description())?;
         let mut bytes = Vec::new();
         {
             let mut npz = ndarray_npy::NpzWriter::new(std::io::Cursor::new(&mut bytes));
@@ -414,7 +416,7 @@ impl ShapeSpace {
                 .map_err(npz_err)?;
             npz.finish().map_err(npz_err)?;
         }
-        Ok((bytes, description))
+        Ok(bytes)
     }
 
     /// Loads and checks a saved space.
@@ -573,6 +575,11 @@ impl ShapeSpace {
             up,
         })
     }
+}
+
+/// `json` as pretty-printed text with a final newline.
+fn pretty(json: &serde_json::Value) -> Result<String> {
+    Ok(serde_json::to_string_pretty(json).map_err(|e| Error::InvalidInput(e.to_string()))? + "\n")
 }
 
 /// What a CPD fit moved each source point by, flattened M x 3.

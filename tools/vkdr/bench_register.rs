@@ -301,7 +301,7 @@ pub fn run(args: &Args) -> Result<()> {
             triangles,
         ),
     )];
-    for (t, error) in eval::error_curve(&space, &truth, &run.codes)?
+    for (t, error) in eval::error_curve(&space, &truth, &run.codes, &run.scales)?
         .into_iter()
         .enumerate()
     {

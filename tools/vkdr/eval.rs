@@ -1417,13 +1417,7 @@ pub fn evaluate_instance(
         iterations.push(result.iterations as f64);
         ms.push(result.milliseconds);
         ms_per_iteration.push(result.milliseconds / result.iterations as f64);
-        accumulate_curve(
-            &mut curve_known,
-            space,
-            truth,
-            &result.codes,
-            settings.trials,
-        )?;
+        accumulate_curve(&mut curve_known, space, truth, &result, settings.trials)?;
 
         if settings.from_truth {
             let params = RegisterParams {
@@ -1515,13 +1509,7 @@ pub fn evaluate_instance(
         noisy_ch.push(chamfer(&test_vertices, &result.vertices));
         noise_iterations.push(result.iterations as f64);
         noise_ms.push(result.milliseconds);
-        accumulate_curve(
-            &mut curve_noise,
-            space,
-            truth,
-            &result.codes,
-            settings.trials,
-        )?;
+        accumulate_curve(&mut curve_noise, space, truth, &result, settings.trials)?;
     }
     progress(settings.trials, settings.trials);
     // The space optimum from the reference's starts, and from the best known-pose
@@ -1564,15 +1552,28 @@ pub fn evaluate_instance(
     })
 }
 
-/// The error (against the surface sample `truth`) of the deformed canonical of each code,
-/// measured once for a run of equal codes (the pose alignment keeps the mean shape, and a
-/// rejected BFGS step keeps the last code).
-pub fn error_curve(space: &ShapeSpace, truth: &[DVec3], codes: &[Vec<f64>]) -> Result<Vec<f64>> {
+/// The error (against the surface sample `truth`) of the deformed canonical of each code
+/// times its scale (`scales`, one per code: a registration's `codes` and `scales`),
+/// measured once for a run of equal codes and scales (the pose alignment keeps the mean
+/// shape, and a rejected BFGS step keeps the last code).
+pub fn error_curve(
+    space: &ShapeSpace,
+    truth: &[DVec3],
+    codes: &[Vec<f64>],
+    scales: &[f64],
+) -> Result<Vec<f64>> {
     let mut curve: Vec<f64> = Vec::with_capacity(codes.len());
-    for (t, code) in codes.iter().enumerate() {
+    for (t, (code, &scale)) in codes.iter().zip(scales).enumerate() {
         let error = match curve.last() {
-            Some(&last) if codes[t - 1] == *code => last,
-            _ => surface_error(truth, &space.vertices(code)?, space.canonical.triangles()),
+            Some(&last) if codes[t - 1] == *code && scales[t - 1] == scale => last,
+            _ => {
+                let vertices: Vec<DVec3> = space
+                    .vertices(code)?
+                    .into_iter()
+                    .map(|v| v * scale)
+                    .collect();
+                surface_error(truth, &vertices, space.canonical.triangles())
+            }
         };
         curve.push(error);
     }
@@ -1584,10 +1585,10 @@ fn accumulate_curve(
     curve: &mut [f64],
     space: &ShapeSpace,
     truth: &[DVec3],
-    codes: &[Vec<f64>],
+    result: &vkdr::register::Registration,
     trials: usize,
 ) -> Result<()> {
-    let errors = error_curve(space, truth, codes)?;
+    let errors = error_curve(space, truth, &result.codes, &result.scales)?;
     let mut last = f64::NAN;
     for (t, slot) in curve.iter_mut().enumerate() {
         last = errors.get(t).copied().unwrap_or(last);
@@ -1873,7 +1874,7 @@ mod tests {
         let truth = surface_sample(canonical, 300, 1);
         let (a, b) = (vec![0.0, 0.0], space.training_codes[1].clone());
         let codes = vec![a.clone(), a.clone(), b.clone(), b.clone(), a.clone()];
-        let curve = error_curve(&space, &truth, &codes).unwrap();
+        let curve = error_curve(&space, &truth, &codes, &[1.0; 5]).unwrap();
         assert_eq!(curve.len(), codes.len());
         for (code, error) in codes.iter().zip(&curve) {
             let want = surface_error(

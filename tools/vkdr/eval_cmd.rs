@@ -126,7 +126,7 @@ pub struct Args {
     /// training instance).
     #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
     test_scale: f64,
-    /// Fit one uniform scale of the shape too, in both conditions (0.5 to 1.5).
+    /// Fit one uniform scale of the shape too, in both conditions (0.25 to 1.75).
     #[arg(long)]
     optimize_scale: bool,
     /// With pose noise, keep the object's up axis within --tilt-tolerance of up: `known`

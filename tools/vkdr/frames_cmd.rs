@@ -52,8 +52,8 @@ pub struct Args {
     /// gravity (none; its rows say so) or count it as failed (error).
     #[arg(long, value_parser = ["none", "error"], default_value = "none")]
     gravity_fallback: String,
-    /// Keep the shape's scale at the training set's. By default one uniform scale (0.5 to
-    /// 1.5) is fitted too, which the depth observes: a robot does not know the instance's
+    /// Keep the shape's scale at the training set's. By default one uniform scale (0.25
+    /// to 1.75) is fitted too, which the depth observes: a robot does not know the instance's
     /// size.
     #[arg(long)]
     no_scale: bool,

@@ -115,7 +115,7 @@ pub struct Args {
         default_value_t = 1.0
     )]
     tilt_tolerance: f64,
-    /// Fit one uniform scale of the shape too (0.5 to 1.5), for an instance larger or
+    /// Fit one uniform scale of the shape too (0.25 to 1.75), for an instance larger or
     /// smaller than the training set's; observable with depth or a further view.
     #[arg(long)]
     optimize_scale: bool,

@@ -22,8 +22,14 @@ use vkdr_app::eval::Row;
 
 /// The shard file's name in a shard's --out.
 pub const FILE: &str = "shard.json";
-/// The shard file's format.
-const FORMAT: u32 = 1;
+/// The shard file's format: 2 since trials carry the field's metrics (ADD-S, NOCS
+/// rotation, IoU, the gravity fallback) and the version its build's commit.
+const FORMAT: u32 = 2;
+
+/// The version of this build: the package's and the git commit it was built from.
+pub fn build_version() -> String {
+    format!("{}+{}", env!("CARGO_PKG_VERSION"), env!("VKDR_COMMIT"))
+}
 
 /// Shard `index` of `count` (0-based, as Slurm's array task ids).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -170,7 +176,7 @@ pub struct ShardFile {
     pub format: u32,
     /// The command that ran it: `eval` or `eval-frames`.
     pub command: String,
-    /// The vkdr version that ran it.
+    /// The vkdr version that ran it, with its build's commit ([`build_version`]).
     pub version: String,
     /// The run's flags after `eval`, without --shard, --out and --spaces: every shard of a
     /// run has the same, and the merge rebuilds the settings from them.
@@ -232,7 +238,7 @@ impl ShardFile {
         Self {
             format: FORMAT,
             command: command.to_string(),
-            version: env!("CARGO_PKG_VERSION").to_string(),
+            version: build_version(),
             run,
             shard: shard.index,
             shards: shard.count,
