@@ -1,6 +1,6 @@
 """The binding's overhead over the engine's own time, for loss_and_grad.
 
-    python bindings/python/benches/overhead.py [--vertices 100000] [--size 1024] [--runs 15]
+    python bindings/python/benches/overhead.py [--vertices 100000] [--size 1024] [--runs 15] [--json F]
 
 Each call's wall time in Python against the time the same call spent in the engine
 (`Device.engine_ms`: the scene's buffers, the forward and backward passes and the read-back,
@@ -10,6 +10,7 @@ check against the first run (the same bytes every run).
 """
 
 import argparse
+import json
 import statistics
 import sys
 import time
@@ -39,6 +40,7 @@ def main():
     parser.add_argument("--vertices", type=int, default=100_000)
     parser.add_argument("--size", type=int, default=1024)
     parser.add_argument("--runs", type=int, default=15)
+    parser.add_argument("--json", help="also write the medians to this JSON file")
     args = parser.parse_args()
     device = vkdr.Device()
     vertices, faces = sphere(args.vertices)
@@ -70,6 +72,11 @@ def main():
           f"{wall:.1f} ms in Python, {engine:.1f} ms in the engine, overhead {overhead:.2f} ms "
           f"({100 * overhead / engine:.2f}% of the engine's time); loss {loss:.6e}, "
           f"|dL/dv| {np.linalg.norm(grad_vertices):.4e}, identical gradients every run")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"device": device.name, "vertices": len(vertices), "size": args.size,
+                       "runs": args.runs, "wall_ms": wall, "engine_ms": engine, "overhead_ms": overhead,
+                       "overhead_percent": 100 * overhead / engine, "loss": float(loss)}, f, indent=1)
 
 
 if __name__ == "__main__":

@@ -73,7 +73,7 @@ impl Number for bool {
 /// The kinds of element an argument may have.
 #[derive(Clone, Copy, PartialEq)]
 enum Kind {
-    /// float32 or float64 (geometry).
+    /// floats or integers (geometry).
     Float,
     /// floats, integers or bool (masks and images).
     Any,
@@ -81,11 +81,21 @@ enum Kind {
     Integer,
 }
 
-/// `obj` as a NumPy array: itself, or what `numpy.asarray` makes of a list or tuple.
+/// `obj` as a NumPy array: itself, a tensor's values (detached from its graph, copied to
+/// the host), or what `numpy.asarray` makes of a list or tuple.
 fn untyped<'py>(obj: &Bound<'py, PyAny>, name: &str) -> PyResult<Bound<'py, PyUntypedArray>> {
     if let Ok(array) = obj.cast::<PyUntypedArray>() {
         return Ok(array.clone());
     }
+    let tensor = obj.hasattr("requires_grad")? && obj.hasattr("detach")?;
+    let obj = &if tensor {
+        obj.call_method0("detach")
+            .and_then(|t| t.call_method0("cpu"))
+            .and_then(|t| t.call_method0("numpy"))
+            .map_err(|e| bad(name, format!("a tensor NumPy cannot hold ({e})")))?
+    } else {
+        obj.clone()
+    };
     let array = obj
         .py()
         .import("numpy")?
@@ -140,16 +150,17 @@ fn read<U>(
     if kind != Kind::Integer {
         try_types!(f32, f64);
     }
-    if kind != Kind::Float {
-        try_types!(bool, u8, i8, u16, i16, u32, i32, u64, i64);
+    if kind == Kind::Any {
+        try_types!(bool);
     }
+    try_types!(u8, i8, u16, i16, u32, i32, u64, i64);
     let dtype = array.dtype();
     Err(bad(
         name,
         format!(
             "dtype {dtype} is not {}",
             match kind {
-                Kind::Float => "float32 or float64",
+                Kind::Float => "a number (float or integer)",
                 Kind::Any => "a number or bool",
                 Kind::Integer => "an integer",
             }
@@ -157,14 +168,15 @@ fn read<U>(
     ))
 }
 
-/// A float32 or float64 argument as f64, every value finite.
+/// A number argument (floats or integers) as f64, every value finite.
 pub fn floats(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Values<f64>> {
     let values = read(obj, name, Kind::Float, |v, _| v)?;
     finite(&values.data, name)?;
     Ok(values)
 }
 
-/// A float32 or float64 argument as f32 (the device's precision), every value finite.
+/// A number argument (floats or integers) as f32 (the device's precision), every value
+/// finite.
 pub fn floats32(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Values<f32>> {
     let values = read(obj, name, Kind::Float, |v, _| v as f32)?;
     finite(&values.data, name)?;
@@ -199,6 +211,21 @@ pub fn image(
         ));
     }
     Ok(values.data)
+}
+
+/// A mask argument as [`image`] reads it, thresholded as the command line does: 1 where
+/// a value is above 0 (bool, 0/1 and 0/255 masks alike), else 0.
+pub fn mask(
+    obj: &Bound<'_, PyAny>,
+    name: &str,
+    size: (u32, u32),
+    views: Option<usize>,
+) -> PyResult<Vec<f32>> {
+    let mut values = image(obj, name, size, views)?;
+    for v in &mut values {
+        *v = if *v > 0.0 { 1.0 } else { 0.0 };
+    }
+    Ok(values)
 }
 
 /// An integer argument (a value past `i64::MAX` reads as -1: no index is that large).

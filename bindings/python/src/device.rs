@@ -27,6 +27,8 @@ pub struct Engine {
     ctx: Context,
     parts: Mutex<Parts>,
     engine_ms: Mutex<f64>,
+    /// The process that made it: a Vulkan device does not survive a fork.
+    pid: u32,
 }
 
 /// The pipelines, each built when a call first needs it.
@@ -66,7 +68,13 @@ impl Engine {
             ctx: Context::with_options(options)?,
             parts: Mutex::new(Parts::default()),
             engine_ms: Mutex::new(0.0),
+            pid: std::process::id(),
         })
+    }
+
+    /// Whether this process made the engine (not a child forked after it was made).
+    fn is_ours(&self) -> bool {
+        self.pid == std::process::id()
     }
 
     /// Runs `work` on the device, after any other call's, and keeps its wall time.
@@ -74,6 +82,15 @@ impl Engine {
         &self,
         work: impl FnOnce(&Context, &mut Parts) -> vkdr::Result<T>,
     ) -> PyResult<T> {
+        if !self.is_ours() {
+            return Err(PyRuntimeError::new_err(format!(
+                "this Device was made in process {} and cannot be used in a forked child \
+                 (process {}): make a vkdr.Device() in the child (a DataLoader's \
+                 worker_init_fn), or start workers with the 'spawn' method",
+                self.pid,
+                std::process::id()
+            )));
+        }
         let mut parts = self
             .parts
             .lock()
@@ -99,6 +116,11 @@ pub fn engine_of(py: Python<'_>, device: Option<&Bound<'_, Device>>) -> PyResult
         let mut default = DEFAULT
             .lock()
             .map_err(|_| PyRuntimeError::new_err("the default device failed to start"))?;
+        // A forked child makes its own (the parent's is left alone: its Vulkan objects
+        // are the parent's, not the child's to destroy).
+        if let Some(inherited) = default.take_if(|engine| !engine.is_ours()) {
+            std::mem::forget(inherited);
+        }
         if default.is_none() {
             *default = Some(Arc::new(Engine::new(None, false).py()?));
         }
@@ -218,11 +240,11 @@ impl Device {
         vertices: &Bound<'py, PyAny>,
         faces: &Bound<'py, PyAny>,
         K: &Bound<'py, PyAny>,
-        size: (i64, i64),
+        size: &Bound<'_, PyAny>,
         poses: &Bound<'py, PyAny>,
     ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>, Bound<'py, PyAny>)> {
         let mesh = crate::mesh(vertices, faces)?;
-        let camera = crate::camera(K, crate::size(size)?)?;
+        let camera = crate::camera(K, crate::size(size, "size")?)?;
         let (poses, batched) = crate::poses(poses, "poses")?;
         let views: Vec<View> = poses.iter().map(|&pose| View { camera, pose }).collect();
         let g = py.detach(|| {
@@ -274,7 +296,7 @@ impl Device {
         vertices: &Bound<'py, PyAny>,
         faces: &Bound<'py, PyAny>,
         K: &Bound<'py, PyAny>,
-        size: (i64, i64),
+        size: &Bound<'_, PyAny>,
         pose: &Bound<'py, PyAny>,
         mask: &Bound<'py, PyAny>,
         loss: &str,
@@ -288,7 +310,7 @@ impl Device {
         ambient: Option<f64>,
     ) -> PyResult<(f64, Bound<'py, PyAny>, Bound<'py, PyAny>)> {
         let mesh = crate::mesh(vertices, faces)?;
-        let camera = crate::camera(K, crate::size(size)?)?;
+        let camera = crate::camera(K, crate::size(size, "size")?)?;
         let pose = crate::pose(pose, "pose")?;
         let wh = (camera.width, camera.height);
         let loss: Loss = loss.parse().map_err(|e| bad("loss", e))?;
@@ -346,7 +368,7 @@ impl Device {
     /// frame to this one's), `mask` and optionally `depth` and `shading`.
     ///
     /// Options (the command line's `vkdr register` flags, the same defaults):
-    /// `optimize_pose` (False), `optimize_scale` (False: one uniform scale, 0.5-1.5),
+    /// `optimize_pose` (False), `optimize_scale` (False: one uniform scale, 0.25-1.75),
     /// `iterations` (30, or 60 after a 15-iteration pose alignment with the pose free,
     /// and with depth 10 more at a wide depth scale),
     /// `loss` ("mse"), `optimizer` ("bfgs"; "sgd", "adam"), `code_prior` ("auto" or a
@@ -364,7 +386,7 @@ impl Device {
         space: &Bound<'py, ShapeSpace>,
         mask: &Bound<'py, PyAny>,
         K: &Bound<'py, PyAny>,
-        size: (i64, i64),
+        size: &Bound<'_, PyAny>,
         pose: &Bound<'py, PyAny>,
         depth: Option<&Bound<'py, PyAny>>,
         shading: Option<&Bound<'py, PyAny>>,
@@ -374,7 +396,7 @@ impl Device {
         options: Option<&Bound<'py, PyDict>>,
     ) -> PyResult<Registration> {
         let options = Options::read(options)?;
-        let camera = crate::camera(K, crate::size(size)?)?;
+        let camera = crate::camera(K, crate::size(size, "size")?)?;
         let view = View {
             camera,
             pose: crate::pose(pose, "pose")?,
@@ -415,19 +437,19 @@ impl Device {
         space: &Bound<'py, ShapeSpace>,
         masks: &Bound<'py, PyAny>,
         K: &Bound<'py, PyAny>,
-        size: (i64, i64),
+        size: &Bound<'_, PyAny>,
         poses: &Bound<'py, PyAny>,
         depths: Option<&Bound<'py, PyAny>>,
         progress: Option<Py<PyAny>>,
         options: Option<&Bound<'py, PyDict>>,
     ) -> PyResult<Vec<Registration>> {
         let options = Options::read(options)?;
-        let camera = crate::camera(K, crate::size(size)?)?;
+        let camera = crate::camera(K, crate::size(size, "size")?)?;
         let (poses, _) = crate::poses(poses, "poses")?;
         let n = poses.len();
         let wh = (camera.width, camera.height);
         let pixels = (camera.width * camera.height) as usize;
-        let masks = arrays::image(masks, "masks", wh, Some(n))?;
+        let masks = arrays::mask(masks, "masks", wh, Some(n))?;
         let depths = depths
             .map(|d| arrays::image(d, "depths", wh, Some(n)))
             .transpose()?;
@@ -529,10 +551,8 @@ fn further_views(list: &Bound<'_, PyList>) -> PyResult<Vec<FurtherView>> {
                 dict.get_item(key)?
                     .ok_or_else(|| bad(&name, format!("has no \"{key}\"")))
             };
-            let size: (i64, i64) = get("size")?
-                .extract()
-                .map_err(|_| bad(&format!("{name}[\"size\"]"), "expected (width, height)"))?;
-            let camera = crate::camera(&get("K")?, crate::size(size)?)?;
+            let size = crate::size(&get("size")?, &format!("{name}[\"size\"]"))?;
+            let camera = crate::camera(&get("K")?, size)?;
             let from_first = crate::pose(&get("from_first")?, &format!("{name}[\"from_first\"]"))?;
             let wh = (camera.width, camera.height);
             let image = |key: &str| -> PyResult<Option<Vec<f32>>> {
@@ -544,7 +564,13 @@ fn further_views(list: &Bound<'_, PyList>) -> PyResult<Vec<FurtherView>> {
             };
             Ok(FurtherView {
                 other: OtherView { camera, from_first },
-                mask: image("mask")?.ok_or_else(|| bad(&name, "has no \"mask\""))?,
+                mask: image("mask")?
+                    .map(|m| {
+                        m.into_iter()
+                            .map(|v| if v > 0.0 { 1.0 } else { 0.0 })
+                            .collect()
+                    })
+                    .ok_or_else(|| bad(&name, "has no \"mask\""))?,
                 depth: image("depth")?,
                 shading: image("shading")?,
             })
@@ -614,7 +640,7 @@ impl Looks {
             obj.map(|o| arrays::image(o, name, wh, Some(views)))
                 .transpose()
         };
-        let mask = arrays::image(mask, "mask", wh, Some(views))?;
+        let mask = arrays::mask(mask, "mask", wh, Some(views))?;
         let depth = image(depth, "depth")?;
         let shaded = image(shading, "shading")?;
         let ignore = image(ignore, "ignore")?;

@@ -186,15 +186,21 @@ fn pose_numbers(pose: &Pose) -> Vec<f64> {
     vec![t.x, t.y, t.z, r.x, r.y, r.z]
 }
 
-/// An (width, height) pair, each positive.
-fn size(size: (i64, i64)) -> PyResult<(u32, u32)> {
-    let (w, h) = size;
+/// `size` = (width, height): a tuple, list or array of two positive integers.
+fn size(size: &Bound<'_, PyAny>, name: &str) -> PyResult<(u32, u32)> {
+    let values = arrays::integers(size, name)?;
+    let &[w, h] = values.data.as_slice() else {
+        return Err(bad(
+            name,
+            format!("expected (width, height), got shape {:?}", values.shape),
+        ));
+    };
     let fits = |v: i64| (1..=i64::from(u32::MAX)).contains(&v);
     if fits(w) && fits(h) {
         Ok((w as u32, h as u32))
     } else {
         Err(bad(
-            "size",
+            name,
             format!("expected (width, height) of positive pixels, got ({w}, {h})"),
         ))
     }

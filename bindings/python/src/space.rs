@@ -1,11 +1,11 @@
 //! `vkdr.ShapeSpace`, `vkdr.Registration`, `vkdr.cpd` and `vkdr.load_mesh`.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use glam::DVec3;
 use pyo3::prelude::*;
-use pyo3::types::{PyDict, PyList};
+use pyo3::types::{PyBytes, PyDict, PyList};
 
 use vkdr::cpd::CpdParams;
 use vkdr::Mesh;
@@ -137,8 +137,10 @@ impl ShapeSpace {
     /// training `instances` (a list of N_i x 3 point arrays, e.g. their vertices), with at
     /// most `dims` dimensions (never more than instances - 1). The CPD parameters are
     /// `vkdr.cpd`'s; `progress(instances done, instances)` is called as each is registered.
+    /// `up` (3,) is the category's up axis, which `register` then uses by default (as
+    /// `vkdr shape-space` takes it from the category's info.json).
     #[staticmethod]
-    #[pyo3(signature = (vertices, faces, instances, dims=5, category="object", names=None, beta=None, lam=None, w=None, device=None, progress=None))]
+    #[pyo3(signature = (vertices, faces, instances, dims=5, category="object", names=None, beta=None, lam=None, w=None, device=None, progress=None, up=None))]
     #[allow(clippy::too_many_arguments)]
     fn build(
         py: Python<'_>,
@@ -153,10 +155,17 @@ impl ShapeSpace {
         w: Option<f64>,
         device: Option<&Bound<'_, Device>>,
         progress: Option<Py<PyAny>>,
+        up: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
         if dims == 0 {
             return Err(bad("dims", "must be at least 1"));
         }
+        let up = up
+            .map(|u| -> PyResult<DVec3> {
+                let values = arrays::floats(u, "up")?.expect("up", &[Some(3)], "(3,)")?;
+                Ok(DVec3::from_slice(&values.data))
+            })
+            .transpose()?;
         let params = cpd_params(beta, lam, w, None, None)?;
         let canonical = crate::mesh(vertices, faces)?;
         let names = names.unwrap_or_else(|| {
@@ -191,7 +200,10 @@ impl ShapeSpace {
                 )
             })
         });
-        let space = progress.finish(space)?;
+        let mut space = progress.finish(space)?;
+        if let Some(up) = up {
+            space = space.with_up(up).map_err(|e| bad("up", e))?;
+        }
         Ok(Self {
             inner: Arc::new(space),
         })
@@ -206,9 +218,36 @@ impl ShapeSpace {
         })
     }
 
-    /// Writes the space (.npz), as `vkdr shape-space` does.
+    /// Writes the space (.npz, which alone is enough to load; and .npz.json, its
+    /// description for people), as `vkdr shape-space` does.
     fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
         py.detach(|| self.inner.save(&path)).py()
+    }
+
+    /// The bytes of the space's .npz file, as `save` writes it.
+    fn to_bytes<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyBytes>> {
+        let bytes = py.detach(|| self.inner.to_bytes()).py()?;
+        Ok(PyBytes::new(py, &bytes))
+    }
+
+    /// A space from the bytes of its .npz file (`to_bytes`, or the file `save` wrote).
+    #[staticmethod]
+    fn from_bytes(py: Python<'_>, data: &[u8]) -> PyResult<Self> {
+        let bytes = data.to_vec();
+        let space = py
+            .detach(|| vkdr::shape::ShapeSpace::from_bytes(bytes, Path::new("<bytes>")))
+            .py()?;
+        Ok(Self {
+            inner: Arc::new(space),
+        })
+    }
+
+    /// Pickles as its .npz file's bytes.
+    fn __reduce__<'py>(
+        slf: &Bound<'py, Self>,
+    ) -> PyResult<(Bound<'py, PyAny>, (Bound<'py, PyBytes>,))> {
+        let from_bytes = slf.get_type().getattr("from_bytes")?;
+        Ok((from_bytes, (slf.get().to_bytes(slf.py())?,)))
     }
 
     /// The canonical mesh deformed by `code` (dims,): its vertices (V x 3, float64).
@@ -360,6 +399,63 @@ impl Registration {
     #[getter]
     fn scale(&self) -> f64 {
         self.result.scale
+    }
+
+    /// Pickles as its space and its numbers (`_restore` makes it again, exactly).
+    #[allow(clippy::type_complexity)]
+    fn __reduce__<'py>(
+        slf: &Bound<'py, Self>,
+    ) -> PyResult<(Bound<'py, PyAny>, (ShapeSpace, Bound<'py, PyDict>))> {
+        let py = slf.py();
+        let r = &slf.get().result;
+        let state = PyDict::new(py);
+        state.set_item("code", r.code.clone())?;
+        state.set_item("pose", crate::pose_numbers(&r.pose))?;
+        state.set_item(
+            "vertices",
+            r.vertices.iter().map(|v| v.to_array()).collect::<Vec<_>>(),
+        )?;
+        state.set_item("losses", r.losses.clone())?;
+        state.set_item("codes", r.codes.clone())?;
+        state.set_item("scales", r.scales.clone())?;
+        state.set_item("iterations", r.iterations)?;
+        state.set_item("milliseconds", r.milliseconds)?;
+        state.set_item("on_bound", r.on_bound)?;
+        state.set_item("scale", r.scale)?;
+        state.set_item("loss", r.loss)?;
+        let space = ShapeSpace {
+            inner: slf.get().space.clone(),
+        };
+        Ok((slf.get_type().getattr("_restore")?, (space, state)))
+    }
+
+    /// A registration from `__reduce__`'s state.
+    #[staticmethod]
+    fn _restore(space: &Bound<'_, ShapeSpace>, state: &Bound<'_, PyDict>) -> PyResult<Self> {
+        let get = |key: &str| -> PyResult<Bound<'_, PyAny>> {
+            state
+                .get_item(key)?
+                .ok_or_else(|| bad("state", format!("has no {key:?}")))
+        };
+        let pose: [f64; 6] = get("pose")?.extract()?;
+        let vertices: Vec<[f64; 3]> = get("vertices")?.extract()?;
+        let result = vkdr::register::Registration {
+            code: get("code")?.extract()?,
+            pose: vkdr::Pose {
+                translation: DVec3::new(pose[0], pose[1], pose[2]),
+                rotation: DVec3::new(pose[3], pose[4], pose[5]),
+            },
+            vertices: vertices.into_iter().map(DVec3::from_array).collect(),
+            losses: get("losses")?.extract()?,
+            codes: get("codes")?.extract()?,
+            scales: get("scales")?.extract()?,
+            iterations: get("iterations")?.extract()?,
+            milliseconds: get("milliseconds")?.extract()?,
+            on_bound: get("on_bound")?.extract()?,
+            scale: get("scale")?.extract()?,
+            loss: get("loss")?.extract()?,
+        };
+        Ok(Self::new(&space.get().inner, result))
     }
 
     fn __repr__(&self) -> String {

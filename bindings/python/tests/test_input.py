@@ -29,7 +29,7 @@ def call(device, scene, **change):
     [
         ("vertices", lambda v, f, m: v[:, :2], r"vertices: expected shape \(V, 3\)"),
         ("vertices", lambda v, f, m: v.astype(np.complex64), "vertices: dtype complex64"),
-        ("vertices", lambda v, f, m: v.astype(np.int32), "vertices: dtype int32"),
+        ("vertices", lambda v, f, m: v > 0, "vertices: dtype bool is not a number"),
         ("vertices", lambda v, f, m: np.where(np.arange(len(v))[:, None] == 3, np.nan, v), "vertices: value NaN at flat index 9"),
         ("vertices", lambda v, f, m: "not numbers", "vertices"),
         ("faces", lambda v, f, m: f + len(v), "faces: face 0 has index"),
@@ -45,6 +45,8 @@ def call(device, scene, **change):
         ("K", lambda v, f, m: np.eye(2), r"K: expected shape \(3, 3\)"),
         ("K", lambda v, f, m: np.array([110.0, -5.0, 48.0, 40.0]), "K and size"),
         ("size", lambda v, f, m: (-96, 80), "size: expected"),
+        ("size", lambda v, f, m: (96, 80, 3), r"size: expected \(width, height\)"),
+        ("size", lambda v, f, m: (96.0, 80.5), "size: dtype float64 is not an integer"),
         ("loss", lambda v, f, m: "l2", "loss: .*unknown loss 'l2'"),
         ("depth", lambda v, f, m: np.zeros((3, 3), np.float32), r"depth: expected shape \(80, 96\)"),
         ("depth_sigma", lambda v, f, m: -1.0, "depth_sigma, depth_weight or occlusion"),
@@ -79,6 +81,64 @@ def test_any_layout_gives_the_same_result(device, scene):
         loss, grad_vertices, grad_pose = call(device, scene, vertices=v, mask=m, faces=f)
         assert loss == expected[0]
         assert np.array_equal(grad_vertices, expected[1]) and np.array_equal(grad_pose, expected[2])
+
+
+def test_everyday_values_are_taken_as_meant(device, scene):
+    """Integers and lists where numbers and matrices are meant, a size as a list, and a
+    mask as 0/255 or 0/1 integers: the same result as float arrays and a 0/1 float mask
+    (a mask is object where above 0, as the command line reads a PNG)."""
+    vertices, faces, mask = scene
+    expected = call(device, scene)
+    integer_K = np.array([[110, 0, 48], [0, 110, 40], [0, 0, 1]])
+    for change in [
+        dict(K=integer_K),
+        dict(K=integer_K.tolist()),
+        dict(pose=POSE.tolist()),
+        dict(size=list(SIZE)),
+        dict(size=np.array(SIZE)),
+        dict(mask=(mask * 255).astype(np.uint8)),
+        dict(mask=(mask * 255).astype(np.float32)),
+        dict(mask=mask.astype(np.int64)),
+    ]:
+        loss, grad_vertices, grad_pose = call(device, scene, **change)
+        assert loss == expected[0], change
+        assert np.array_equal(grad_vertices, expected[1]) and np.array_equal(grad_pose, expected[2])
+    loss, _, _ = call(device, scene, pose=np.array([0, 0, 1, 0, 0, 0]))
+    assert np.isfinite(loss)
+
+
+def test_a_forked_child_is_refused_and_makes_its_own(device, scene):
+    """A Device used in a child forked after it was made raises RuntimeError at once (no
+    hang); the default device is made anew in the child and works."""
+    import os
+    import time
+
+    call(device, scene)  # the parent's device in use before the fork
+    pid = os.fork()
+    if pid == 0:
+        code = 3
+        try:
+            try:
+                call(device, scene)
+                code = 1
+            except RuntimeError as e:
+                code = 0 if "forked child" in str(e) else 2
+            if code == 0:
+                vertices, faces, mask = scene
+                loss = vkdr.default_device().loss_and_grad(vertices, faces, K, SIZE, POSE, mask)[0]
+                code = 0 if np.isfinite(loss) else 4
+        finally:
+            os._exit(code)
+    deadline = time.monotonic() + 60
+    while True:
+        done, status = os.waitpid(pid, os.WNOHANG)
+        if done:
+            break
+        if time.monotonic() > deadline:
+            os.kill(pid, 9)
+            pytest.fail("the forked child hung")
+        time.sleep(0.1)
+    assert os.waitstatus_to_exitcode(status) == 0
 
 
 def test_device_errors_are_runtime_errors(device, scene):
