@@ -822,9 +822,19 @@ fn the_starts_turns_find_a_mug_s_handle() {
         let result = registrar
             .register_from_starts(&ctx, job, &starts, &params, |_, _| {})
             .unwrap();
-        eval::pose_error(result.pose, pose).0.to_degrees()
+        // The stages the losses hold, in order, adding up to them.
+        let counts: usize = result.stages.iter().map(|s| s.1).sum();
+        assert_eq!(counts, result.losses.len(), "{:?}", result.stages);
+        assert_eq!(result.codes.len(), counts);
+        assert_eq!(result.scales.len(), counts);
+        let names: Vec<&str> = result.stages.iter().map(|s| s.0).collect();
+        (eval::pose_error(result.pose, pose).0.to_degrees(), names)
     };
-    let (one, five) = (off(1), off(5));
+    use vkdr::register::{STAGE_ALIGN, STAGE_FIT, STAGE_REACH, STAGE_TURNED};
+    let ((one, one_stages), (five, five_stages)) = (off(1), off(5));
+    assert_eq!(one_stages, [STAGE_ALIGN, STAGE_REACH, STAGE_FIT]);
+    // The handle was found by a turn: the joint fit ran again from it.
+    assert_eq!(five_stages, [STAGE_ALIGN, STAGE_REACH, STAGE_TURNED]);
     common::assert_no_validation_errors(&ctx);
     eprintln!("from 24 degrees off: {one:.1} degrees from one start, {five:.1} from five");
     assert!(

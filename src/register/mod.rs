@@ -104,6 +104,17 @@ pub struct RegisterParams {
     pub detail: u32,
 }
 
+/// A registration's stage ([`Registration::stages`]): the fit (with the pose known, or the
+/// joint fit of pose and shape after an alignment).
+pub const STAGE_FIT: &str = "fit";
+/// The pose aligned alone (`RegisterParams::align`).
+pub const STAGE_ALIGN: &str = "pose alignment";
+/// The pose brought to the measured depth ([`RegisterParams::reach`]).
+pub const STAGE_REACH: &str = "depth reach";
+/// The joint fit again from a turned start that scored better (the registration from
+/// starts), in place of the first joint fit.
+pub const STAGE_TURNED: &str = "fit from a turn";
+
 /// The detail of the registration schedules ([`RegisterParams::detail`]): an object over
 /// 128 pixels across is rendered at a step of 2 or more. On a real 640 x 480 frame (a mug
 /// 230 pixels across, a step of 3) a registration from pose noise costs a third of the
@@ -293,8 +304,15 @@ pub struct Registration {
     pub pose: Pose,
     /// Vertices of the canonical mesh deformed by `code`, in the object frame.
     pub vertices: Vec<DVec3>,
-    /// Loss before each iteration.
+    /// Loss before each iteration, stage after stage ([`Registration::stages`]): each
+    /// stage's objective is its own (the pose alignment's distance loss, the depth
+    /// reach's wide depth cost, the joint fit's loss).
     pub losses: Vec<f64>,
+    /// The stages that `losses`, `codes` and `scales` hold, in order: each one's name
+    /// ([`STAGE_FIT`], [`STAGE_ALIGN`], [`STAGE_REACH`], [`STAGE_TURNED`]) and how many
+    /// entries it holds. Their counts add up to `losses.len()`; `iterations` counts every
+    /// evaluation besides (the turns' checks, a joint fit that a turned one beat).
+    pub stages: Vec<(&'static str, usize)>,
     /// Latent code after each iteration (shape space units).
     pub codes: Vec<Vec<f64>>,
     /// The uniform scale after each iteration (all 1 unless
@@ -713,7 +731,10 @@ impl Registrar {
         let mut aligned: Vec<Registration> = self
             .run(ctx, jobs, &align, true, None, started, 0, &mut on_chunk)?
             .into_iter()
-            .map(|s| s.result)
+            .map(|s| Registration {
+                stages: vec![(STAGE_ALIGN, s.result.losses.len())],
+                ..s.result
+            })
             .collect();
         let mut jobs = at_poses(jobs, &aligned);
         // The alignment leaves z where the start put it when depth is observed, and the
@@ -744,6 +765,7 @@ impl Registrar {
             jobs = at_poses(&jobs, &reached);
             codes = Some(coordinates);
             for (a, r) in aligned.iter_mut().zip(reached) {
+                a.stages.push((STAGE_REACH, r.losses.len()));
                 a.losses.extend(r.losses);
                 a.codes.extend(r.codes);
                 a.scales.extend(r.scales);
@@ -768,6 +790,7 @@ impl Registrar {
             .into_iter()
             .zip(refined.into_iter().map(|s| s.result))
             .map(|(a, mut r)| {
+                r.stages.splice(0..0, a.stages);
                 r.losses.splice(0..0, a.losses);
                 r.codes.splice(0..0, a.codes);
                 r.scales.splice(0..0, a.scales);
@@ -861,7 +884,13 @@ impl Registrar {
             .remove(0);
         let iterations = fitted.result.iterations + again.result.iterations;
         let mut kept = if again.result.loss < fitted.result.loss {
-            again
+            Staged {
+                result: Registration {
+                    stages: vec![(STAGE_TURNED, again.result.losses.len())],
+                    ..again.result
+                },
+                ..again
+            }
         } else {
             fitted
         };
@@ -1458,6 +1487,7 @@ impl<'a> Task<'a> {
                 vertices,
                 code,
                 pose,
+                stages: vec![(STAGE_FIT, losses.len())],
                 losses,
                 codes,
                 scales,

@@ -328,6 +328,21 @@ impl ShapeSpace {
     }
 }
 
+/// The engine's stage names for pickled (name, count) pairs.
+fn stages(pairs: Vec<(String, usize)>) -> PyResult<Vec<(&'static str, usize)>> {
+    use vkdr::register::{STAGE_ALIGN, STAGE_FIT, STAGE_REACH, STAGE_TURNED};
+    pairs
+        .into_iter()
+        .map(|(name, count)| {
+            [STAGE_FIT, STAGE_ALIGN, STAGE_REACH, STAGE_TURNED]
+                .into_iter()
+                .find(|s| *s == name)
+                .map(|s| (s, count))
+                .ok_or_else(|| bad("state", format!("unknown stage {name:?}")))
+        })
+        .collect()
+}
+
 /// What a registration found: `code` (dims,) and `code_sd` (in training standard
 /// deviations), `pose` (6,), `vertices` (V x 3, the deformed canonical times `scale`, object
 /// frame) and `faces`, `losses` before each iteration, `loss` (the objective at the
@@ -381,6 +396,14 @@ impl Registration {
         Ok(array(py, self.result.losses.clone(), &[self.result.losses.len()])?.into_any())
     }
 
+    /// The stages `losses` holds, in order: (name, count), the counts adding up to
+    /// `len(losses)` ("pose alignment", "depth reach", "fit", "fit from a turn"); each
+    /// stage's losses are its own objective's.
+    #[getter]
+    fn stages(&self) -> Vec<(&'static str, usize)> {
+        self.result.stages.clone()
+    }
+
     #[getter]
     fn loss(&self) -> f64 {
         self.result.loss
@@ -416,6 +439,7 @@ impl Registration {
             r.vertices.iter().map(|v| v.to_array()).collect::<Vec<_>>(),
         )?;
         state.set_item("losses", r.losses.clone())?;
+        state.set_item("stages", r.stages.clone())?;
         state.set_item("codes", r.codes.clone())?;
         state.set_item("scales", r.scales.clone())?;
         state.set_item("iterations", r.iterations)?;
@@ -447,6 +471,7 @@ impl Registration {
             },
             vertices: vertices.into_iter().map(DVec3::from_array).collect(),
             losses: get("losses")?.extract()?,
+            stages: stages(get("stages")?.extract()?)?,
             codes: get("codes")?.extract()?,
             scales: get("scales")?.extract()?,
             iterations: get("iterations")?.extract()?,

@@ -226,4 +226,5 @@ def test_spaces_and_registrations_pickle(device, space, tmp_path):
     copy = pickle.loads(pickle.dumps(result))
     for name in ("code", "code_sd", "pose", "vertices", "faces", "losses"):
         assert np.array_equal(getattr(copy, name), getattr(result, name)), name
+    assert copy.stages == result.stages == [("fit", len(result.losses))]
     assert (copy.loss, copy.iterations, copy.scale) == (result.loss, result.iterations, result.scale)

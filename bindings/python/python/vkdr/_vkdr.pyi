@@ -158,6 +158,10 @@ class Registration:
     @property
     def losses(self) -> F64: ...
     @property
+    def stages(self) -> list[tuple[str, int]]:
+        """(name, count) of each stage `losses` holds, in order; the counts add up to
+        len(losses)."""
+    @property
     def loss(self) -> float: ...
     @property
     def iterations(self) -> int: ...
