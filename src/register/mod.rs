@@ -918,16 +918,22 @@ impl Registrar {
         // compared where that is a small part of the image ([`Region`]); a stage whose fit
         // ended at the region's border (where the whole image would have compared pixels
         // the region has not) runs again on the whole image, at the region's step.
-        let Some(region) = Region::of_interest(jobs, params.detail)? else {
-            return self.run_whole(
-                ctx, jobs, params, pose_only, codes, started, first, on_chunk,
-            );
+        let mut run_in = |region: Option<&Region>| {
+            let Some(region) = region else {
+                return self.run_whole(
+                    ctx, jobs, params, pose_only, codes, started, first, on_chunk,
+                );
+            };
+            let cut: Vec<Cut> = jobs.iter().map(|job| region.cut(job)).collect();
+            let cut_jobs: Vec<Job> = jobs.iter().zip(&cut).map(|(j, c)| c.job(j)).collect();
+            self.run_whole(
+                ctx, &cut_jobs, params, pose_only, codes, started, first, on_chunk,
+            )
         };
-        let cut: Vec<Cut> = jobs.iter().map(|job| region.cut(job)).collect();
-        let cut_jobs: Vec<Job> = jobs.iter().zip(&cut).map(|(j, c)| c.job(j)).collect();
-        let staged = self.run_whole(
-            ctx, &cut_jobs, params, pose_only, codes, started, first, on_chunk,
-        )?;
+        let Some(region) = Region::of_interest(jobs, params.detail)? else {
+            return run_in(None);
+        };
+        let staged = run_in(Some(&region))?;
         if staged
             .iter()
             .zip(jobs)
@@ -935,16 +941,7 @@ impl Registrar {
         {
             return Ok(staged);
         }
-        if let Some(whole) = Region::whole(&jobs[0].view.camera, region.step) {
-            let cut: Vec<Cut> = jobs.iter().map(|job| whole.cut(job)).collect();
-            let cut_jobs: Vec<Job> = jobs.iter().zip(&cut).map(|(j, c)| c.job(j)).collect();
-            return self.run_whole(
-                ctx, &cut_jobs, params, pose_only, codes, started, first, on_chunk,
-            );
-        }
-        self.run_whole(
-            ctx, jobs, params, pose_only, codes, started, first, on_chunk,
-        )
+        run_in(Region::whole(&jobs[0].view.camera, region.step).as_ref())
     }
 
     /// [`Registrar::run`] on the jobs' whole images.

@@ -10,7 +10,7 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use common::{s, vkdr};
+use common::{ok, s, vkdr};
 
 /// The shared real set; a failure (not a skip) where it is missing.
 fn real_set() -> PathBuf {
@@ -54,7 +54,7 @@ fn row<'a>(table: &'a serde_json::Value, category: &str) -> &'a serde_json::Valu
 fn a_mug_a_can_and_a_bottle_from_pose_noise() {
     let bop = real_set();
     let out = folder("three").join("out");
-    let result = vkdr(&[
+    ok(&[
         "eval-frames",
         s(&bop),
         "--images",
@@ -64,11 +64,6 @@ fn a_mug_a_can_and_a_bottle_from_pose_noise() {
         "--out",
         s(&out),
     ]);
-    assert!(
-        result.status.success(),
-        "{}",
-        String::from_utf8_lossy(&result.stderr)
-    );
     let table = table(&out);
     assert!(table["failures"].as_array().unwrap().is_empty());
     // Measured (lavapipe, 3 trials, docs/evaluation.md): mug as seen 2.54 mm, 1.13x its
@@ -182,7 +177,7 @@ fn a_frame_without_a_support_plane_is_a_row_not_an_exit() {
     without_table(&frames, &bop);
     // The default fallback: registered without gravity, and the trials say so.
     let out = dir.join("fallback");
-    let result = vkdr(&[
+    ok(&[
         "eval-frames",
         s(&frames),
         "--images",
@@ -192,11 +187,6 @@ fn a_frame_without_a_support_plane_is_a_row_not_an_exit() {
         "--out",
         s(&out),
     ]);
-    assert!(
-        result.status.success(),
-        "{}",
-        String::from_utf8_lossy(&result.stderr)
-    );
     let table = table(&out);
     let mug = row(&table, "mug");
     for t in mug["trials"].as_array().unwrap() {
