@@ -124,6 +124,9 @@ fn settings(args: &Args) -> Result<EvalSettings> {
     base.pose_noise.optimize_scale = !args.no_scale;
     base.known_pose.detail = args.detail;
     base.pose_noise.detail = args.detail;
+    // Before any work: a parameter out of range would fail every unit after its reference.
+    base.known_pose_params().validate()?;
+    base.pose_noise_params().validate()?;
     Ok(base)
 }
 
