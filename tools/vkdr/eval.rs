@@ -17,7 +17,6 @@ use glam::{DMat3, DVec3};
 use crate::dataset::Rng;
 use crate::surface::Surface;
 use vkdr::camera::{Camera, Pose};
-use vkdr::cpd::linalg::{self, Matrix};
 use vkdr::cpd::CpdParams;
 use vkdr::diff::{DepthLoss, Scene, SceneDesc, Shading};
 use vkdr::error::Result;
@@ -27,6 +26,8 @@ use vkdr::mesh::{centroid, Mesh};
 use vkdr::raster::{Outputs, View};
 use vkdr::register::{turned_starts, Gravity, Job, OtherView, RegisterParams, Registrar};
 use vkdr::shape::ShapeSpace;
+
+pub use crate::reference::{space_optimum, surface_sample, Optimum, Reference, SAMPLE_POINTS};
 
 /// Mean over `a` of the distance to the nearest point of `b`.
 pub fn mean_nearest(a: &[DVec3], b: &[DVec3]) -> f64 {
@@ -54,202 +55,6 @@ pub fn surface_error(points: &[DVec3], vertices: &[DVec3], triangles: &[[u32; 3]
     let surface = Surface::new(vertices, triangles);
     points.iter().map(|&p| surface.distance(p)).sum::<f64>() / points.len() as f64
 }
-
-/// Barycentric weights of `q` (a point of the triangle's plane) in triangle a, b, c.
-fn barycentric(q: DVec3, a: DVec3, b: DVec3, c: DVec3) -> [f64; 3] {
-    let (e1, e2, d) = (b - a, c - a, q - a);
-    let (d11, d12, d22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
-    let (d1, d2) = (d.dot(e1), d.dot(e2));
-    let det = d11 * d22 - d12 * d12;
-    if det.abs() <= f64::EPSILON * d11 * d22 {
-        return [1.0, 0.0, 0.0];
-    }
-    let v = (d22 * d1 - d12 * d2) / det;
-    let w = (d11 * d2 - d12 * d1) / det;
-    [1.0 - v - w, v, w]
-}
-
-/// The least error a shape space reaches for a surface ([`space_optimum`]).
-#[derive(Clone, Debug)]
-pub struct Optimum {
-    pub code: Vec<f64>,
-    /// The uniform scale of the deformed canonical (1 unless the scale was free).
-    pub scale: f64,
-    pub error: f64,
-}
-
-/// The code (and with `free_scale` the uniform scale, within
-/// [`vkdr::register::SCALE_RANGE`]) whose deformed canonical is nearest to the surface
-/// sample `truth` by the reported error itself ([`surface_error`]; the object frame, so
-/// the pose is known): the best the shape space can do, with which to judge registration
-/// where the paper-style oracle (a fit to CPD's deformation) is not the best fit.
-///
-/// Levenberg-Marquardt on the distances: each point's distance to the surface is
-/// linearised through its nearest point (moving with its triangle's corners, its
-/// direction the gradient of the distance), weighted by 1 / distance (iteratively
-/// reweighted least squares: the sum of distances, not of their squares, is what is
-/// minimised), and a step is kept only where the error falls; otherwise the damping grows.
-/// Started at `start` (and scale 1), at most `iterations` evaluations of the error, so the
-/// result is never worse than the start.
-pub fn space_optimum(
-    space: &ShapeSpace,
-    truth: &[DVec3],
-    start: &[f64],
-    iterations: usize,
-    free_scale: bool,
-) -> Result<Optimum> {
-    let triangles = space.canonical.triangles();
-    let k = space.dims();
-    // The parameters: the code, then the scale where it is free.
-    let n = k + free_scale as usize;
-    let (lowest, highest) = vkdr::register::SCALE_RANGE;
-    let scale_of = |x: &[f64]| if free_scale { x[k] } else { 1.0 };
-    let shape = |x: &[f64]| -> Result<Vec<DVec3>> {
-        let scale = scale_of(x);
-        Ok(space
-            .vertices(&x[..k])?
-            .into_iter()
-            .map(|v| v * scale)
-            .collect())
-    };
-    let error_of = |x: &[f64]| -> Result<f64> { Ok(surface_error(truth, &shape(x)?, triangles)) };
-    let mut first = start.to_vec();
-    if free_scale {
-        first.push(1.0);
-    }
-    let mut best = (first.clone(), error_of(&first)?);
-    let mut damping = 1e-3;
-    let mut evaluations = 0;
-    while evaluations < iterations && best.1 > 0.0 {
-        // The weighted normal equations at the best parameters.
-        let vertices = shape(&best.0)?;
-        let scale = scale_of(&best.0);
-        let mut normal = Matrix::zeros(n, n);
-        let mut gradient = vec![0.0; n];
-        let floor = 1e-2 * best.1;
-        let surface = Surface::new(&vertices, triangles);
-        for &p in truth {
-            let (t, q) = surface.closest(p).ok_or_else(|| {
-                vkdr::error::Error::InvalidInput(
-                    "the shape space's canonical has no triangles".into(),
-                )
-            })?;
-            let tri = triangles[t];
-            let [a, b, c] = tri.map(|i| vertices[i as usize]);
-            let r = q - p;
-            let distance = r.length();
-            // d distance / d q: along r, or the face's normal for a point on the surface.
-            let direction = if distance > 1e-12 * best.1 {
-                r / distance
-            } else {
-                (b - a).cross(c - a).normalize_or_zero()
-            };
-            let weights = barycentric(q, a, b, c);
-            // d distance / d s_j: the triangle's corners moved by basis j (times the
-            // scale), mixed by the weights, seen along the direction; d distance / d scale:
-            // the point moved by q / scale.
-            let mut row: Vec<f64> = (0..k)
-                .map(|j| {
-                    let basis = &space.deformation_basis[j];
-                    (0..3)
-                        .map(|corner| {
-                            let v = 3 * tri[corner] as usize;
-                            weights[corner]
-                                * scale
-                                * direction.dot(DVec3::new(basis[v], basis[v + 1], basis[v + 2]))
-                        })
-                        .sum()
-                })
-                .collect();
-            if free_scale {
-                row.push(direction.dot(q / scale));
-            }
-            let w = 1.0 / distance.max(floor);
-            for i in 0..n {
-                for j in 0..n {
-                    normal.set(i, j, normal.at(i, j) + w * row[i] * row[j]);
-                }
-                gradient[i] += w * distance * row[i];
-            }
-        }
-        // Damped steps until one lowers the error (or the evaluations run out).
-        let mut improved = false;
-        while evaluations < iterations && !improved {
-            let mut damped = normal.clone();
-            let trace = (0..n).map(|i| normal.at(i, i)).sum::<f64>() / n as f64;
-            for i in 0..n {
-                damped.set(i, i, normal.at(i, i) * (1.0 + damping) + 1e-12 * trace);
-            }
-            let mut rhs = Matrix::zeros(n, 1);
-            for i in 0..n {
-                rhs.set(i, 0, -gradient[i]);
-            }
-            let step = linalg::solve(damped, rhs)?;
-            let mut x: Vec<f64> = (0..n).map(|i| best.0[i] + step.at(i, 0)).collect();
-            if free_scale {
-                x[k] = x[k].clamp(lowest, highest);
-            }
-            let error = error_of(&x)?;
-            evaluations += 1;
-            if error < best.1 {
-                improved = true;
-                damping = (damping / 3.0).max(1e-9);
-                let gain = best.1 - error;
-                best = (x, error);
-                if gain <= 1e-5 * best.1 {
-                    return Ok(optimum(best, k, free_scale));
-                }
-            } else {
-                damping *= 4.0;
-                if damping > 1e12 {
-                    return Ok(optimum(best, k, free_scale));
-                }
-            }
-        }
-    }
-    Ok(optimum(best, k, free_scale))
-}
-
-/// [`space_optimum`]'s parameters and error as an [`Optimum`].
-fn optimum((mut x, error): (Vec<f64>, f64), k: usize, free_scale: bool) -> Optimum {
-    let scale = if free_scale { x[k] } else { 1.0 };
-    x.truncate(k);
-    Optimum {
-        code: x,
-        scale,
-        error,
-    }
-}
-
-/// `n` points drawn uniformly (by area) on the surface of `mesh`, seeded.
-pub fn surface_sample(mesh: &Mesh, n: usize, seed: u64) -> Vec<DVec3> {
-    let p = mesh.points();
-    let mut cumulative = Vec::with_capacity(mesh.triangle_count());
-    let mut total = 0.0;
-    for t in mesh.triangles() {
-        let [a, b, c] = t.map(|i| p[i as usize]);
-        total += 0.5 * (b - a).cross(c - a).length();
-        cumulative.push(total);
-    }
-    let mut rng = Rng::new(seed);
-    (0..n)
-        .map(|_| {
-            let r = rng.range(0.0, total);
-            let k = cumulative
-                .partition_point(|&c| c < r)
-                .min(cumulative.len() - 1);
-            let [a, b, c] = mesh.triangles()[k].map(|i| p[i as usize]);
-            let (mut u, mut v) = (rng.uniform(), rng.uniform());
-            if u + v > 1.0 {
-                (u, v) = (1.0 - u, 1.0 - v);
-            }
-            a + u * (b - a) + v * (c - a)
-        })
-        .collect()
-}
-
-/// Points of the test surface the error is measured on.
-pub const SAMPLE_POINTS: usize = 2000;
 
 /// Symmetric chamfer distance: the mean of both directions' mean nearest distances.
 pub fn chamfer(a: &[DVec3], b: &[DVec3]) -> f64 {
@@ -683,6 +488,10 @@ pub struct Trial {
     /// object misplaced. (Absent from shards written before it: 0.)
     #[serde(default)]
     pub z_error_origin: f64,
+    /// The same z error for the registration with the pose known (its surface at the true
+    /// pose): the part of `z_error` that is the shape's, not the pose's.
+    #[serde(default)]
+    pub z_error_known: f64,
     pub scale: f64,
     /// The angle (radians) between the up direction the registration was given and the
     /// true one (0 without gravity or with it known; the support plane's error from depth).
@@ -1100,77 +909,6 @@ pub enum TrialSource<'a> {
     },
 }
 
-/// What one test model is measured against, the same in every frame that shows it: its
-/// surface sample, the oracle's code and vertices, and the space optimum from the
-/// oracle's code and the mean shape.
-#[derive(Clone, Debug)]
-pub struct Reference {
-    pub truth: Vec<DVec3>,
-    pub oracle_code: Vec<f64>,
-    pub oracle_vertices: Vec<DVec3>,
-    /// The least error found from the oracle's code and from the mean shape.
-    pub optimum: f64,
-    /// Whether the optimum's scale was free.
-    pub free_scale: bool,
-    /// Whether `truth` is symmetric about the up axis ([`symmetric_about`]).
-    pub symmetric: bool,
-    /// Where it is not, the points of `truth` that break the symmetry (a mug's handle,
-    /// [`crate::metrics::asymmetric_points`]).
-    pub asymmetric: Vec<DVec3>,
-}
-
-impl Reference {
-    /// The reference of `test` in `space`: a surface sample of [`SAMPLE_POINTS`] (seeded
-    /// by `seed`), CPD's oracle, and the space optimum; with `scale` other than 1 those of
-    /// the instance at its own size, scaled (where the scale is optimised the space with
-    /// a scale reaches exactly that); with `free_scale` the optimum's scale is free too
-    /// (a registration that fits the scale is judged against that); what breaks its
-    /// symmetry about `up`.
-    #[allow(clippy::too_many_arguments)]
-    pub fn of(
-        ctx: &Context,
-        space: &ShapeSpace,
-        test: &Mesh,
-        seed: u64,
-        cpd: &CpdParams,
-        scale: f64,
-        free_scale: bool,
-        up: DVec3,
-    ) -> Result<Self> {
-        let truth = surface_sample(test, SAMPLE_POINTS, seed);
-        let symmetric = symmetric_about(&truth, up);
-        let asymmetric = match symmetric {
-            true => Vec::new(),
-            false => {
-                let size = surface_extent(&test.points(), test.triangles()).1;
-                crate::metrics::asymmetric_points(&truth, up, 0.01 * size)
-            }
-        };
-        let unscaled: Vec<DVec3> = test.points().iter().map(|p| *p / scale).collect();
-        let oracle_code = space.oracle_code(ctx, &unscaled, cpd)?;
-        let oracle_vertices: Vec<DVec3> = space
-            .vertices(&oracle_code)?
-            .iter()
-            .map(|p| *p * scale)
-            .collect();
-        let unscaled_truth: Vec<DVec3> = truth.iter().map(|p| *p / scale).collect();
-        let mut optimum = f64::INFINITY;
-        for start in [oracle_code.clone(), vec![0.0; space.dims()]] {
-            optimum =
-                optimum.min(space_optimum(space, &unscaled_truth, &start, 30, free_scale)?.error);
-        }
-        Ok(Self {
-            truth,
-            oracle_code,
-            oracle_vertices,
-            optimum: optimum * scale,
-            free_scale,
-            symmetric,
-            asymmetric,
-        })
-    }
-}
-
 /// A rendered trial: random views of `test` (and `table` under it) with the settings'
 /// occluder, depth noise and holes.
 pub fn render_trial(
@@ -1408,6 +1146,8 @@ pub fn evaluate_instance(
             known_once = Some(result.clone());
         }
         let known_error = error(&result.vertices);
+        let known_centre = surface_extent(&result.vertices, space.canonical.triangles()).0;
+        let z_error_known = (pose.rotation_matrix() * (known_centre - test_centre)).z;
         if best_known.as_ref().is_none_or(|(e, _)| known_error < *e) {
             best_known = Some((known_error, result.code.clone()));
         }
@@ -1487,6 +1227,7 @@ pub fn evaluate_instance(
             z_error: (pose.rotation_matrix() * (seen_centre - test_centre)).z,
             size: seen_size / test_size,
             z_error_origin: result.pose.translation.z - pose.translation.z,
+            z_error_known,
             scale: result.scale,
             gravity_error: gravity.map_or(0.0, |g| angle_between(g.direction, true_up)),
             gravity_fallback,

@@ -970,12 +970,12 @@ fn view_table(rows: &[Row]) -> String {
 /// One line per trial: the view, the errors, and the pose error with pose noise.
 pub fn trials_csv(rows: &[Row]) -> String {
     let mut csv = String::from(
-        "category,instance,trial,azimuth_deg,elevation_deg,long_axis_angle_deg,short_axis_angle_deg,known_pose,pose_noise,pose_noise_placed,pose_noise_seen,rotation_error_deg,rotation_error_symmetric_deg,translation_error,known_pose_on_bound,pose_noise_on_bound,known_pose_loss,pose_noise_loss,pose_noise_seen_both_ways,tilt_deg,z_error,scale,gravity_error_deg,z_error_origin,size,gravity_fallback,add_s,centroid_error,rotation_error_nocs_deg,iou\n",
+        "category,instance,trial,azimuth_deg,elevation_deg,long_axis_angle_deg,short_axis_angle_deg,known_pose,pose_noise,pose_noise_placed,pose_noise_seen,rotation_error_deg,rotation_error_symmetric_deg,translation_error,known_pose_on_bound,pose_noise_on_bound,known_pose_loss,pose_noise_loss,pose_noise_seen_both_ways,tilt_deg,z_error,scale,gravity_error_deg,z_error_origin,size,gravity_fallback,add_s,centroid_error,rotation_error_nocs_deg,iou,z_error_known\n",
     );
     for r in rows {
         for (i, t) in r.trials.iter().enumerate() {
             csv.push_str(&format!(
-                "{},{},{i},{:.2},{:.2},{:.2},{:.2},{:e},{:e},{:e},{:e},{:.3},{:.3},{:e},{},{},{:e},{:e},{:e},{:.3},{:e},{:.5},{:.3},{:e},{:.5},{},{:e},{:e},{:.3},{:.4}\n",
+                "{},{},{i},{:.2},{:.2},{:.2},{:.2},{:e},{:e},{:e},{:e},{:.3},{:.3},{:e},{},{},{:e},{:e},{:e},{:.3},{:e},{:.5},{:.3},{:e},{:.5},{},{:e},{:e},{:.3},{:.4},{:e}\n",
                 r.category,
                 r.instance,
                 t.azimuth.to_degrees(),
@@ -1005,6 +1005,7 @@ pub fn trials_csv(rows: &[Row]) -> String {
                 t.centroid_error,
                 t.rotation_error_nocs.to_degrees(),
                 t.iou,
+                t.z_error_known,
             ));
         }
     }

@@ -72,7 +72,8 @@ pub struct Args {
     /// OUT/shard.json for --merge (as `vkdr eval --shard`).
     #[arg(long)]
     shard: Option<String>,
-    /// A folder of shape spaces (CATEGORY.npz), read where there, built and saved where not.
+    /// A folder of shape spaces (CATEGORY.npz) and of the models' references (references/:
+    /// each model's oracle and space optimum), read where there, computed and saved where not.
     #[arg(long)]
     spaces: Option<PathBuf>,
     /// Merge the shards of a run: OUT, then the shards' --out folders.
@@ -271,10 +272,21 @@ pub fn run(args: &Args) -> Result<()> {
         let name = &unit.instance_name;
         let obj_id = target.object.obj_id;
         if let Entry::Vacant(slot) = references.entry(obj_id) {
-            eprint!("\r  obj_id {obj_id}: the model's oracle and space optimum ");
             let model = &models[&obj_id];
             let free_scale = base.pose_noise.optimize_scale;
-            match eval::Reference::of(&ctx, space, model, obj_id, &base.cpd, 1.0, free_scale, up) {
+            let reference = eval::Reference::cached(
+                args.spaces.as_deref(),
+                || eprint!("\r  obj_id {obj_id}: the model's oracle and space optimum "),
+                &ctx,
+                space,
+                model,
+                obj_id,
+                &base.cpd,
+                1.0,
+                free_scale,
+                up,
+            );
+            match reference {
                 Ok(reference) => {
                     slot.insert(reference);
                 }

@@ -48,7 +48,7 @@ pub fn write(
          as seen: the same for the registration from pose noise, each surface at its pose (camera frame); \
          / opt.: over the space optimum (the least error the category's shape space reaches for this model). \
          rotation: the rotation error as NOCS counts it (up to turns about the up axis where the model is symmetric or the frame does not show what breaks its symmetry, a mug's handle); \
-         tilt: the angle between the registered and the true up axis; z: the error in depth of the surface's centroid; size: the registered surface's size over the model's. \
+         tilt: the angle between the registered and the true up axis; z: the error in depth of the surface's centroid; z known: the same with the pose known (the shape's part of z: what the frame leaves unseen, a base out of the image or behind an object in front, the shape space fills in); size: the registered surface's size over the model's. \
          ADD-S: the mean over the model's points (up to {}) at the true pose of the distance to the registered surface at its pose \
          (instance-level methods report it with the exact model; here it holds the shape's error too); \
          AUC: its area under the accuracy curve up to {:.0} cm (PoseCNN's YCB-Video protocol), per cent; \
@@ -110,14 +110,14 @@ fn mean(trials: &[&Trial], of: impl Fn(&Trial) -> f64) -> f64 {
 
 fn unit_table(rows: &[Row]) -> String {
     let mut md = String::from(
-        "| category | unit | known pose | / opt. | as seen | / opt. | rotation (deg) | tilt (deg) | abs z | size | ADD-S | IoU | ms | gravity |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+        "| category | unit | known pose | / opt. | as seen | / opt. | rotation (deg) | tilt (deg) | abs z | abs z known | size | ADD-S | IoU | ms | gravity |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for r in rows {
         let trials: Vec<&Trial> = r.trials.iter().collect();
         let fallbacks = trials.iter().filter(|t| t.gravity_fallback).count();
         md.push_str(&format!(
-            "| {} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.1} | {:.1} | {:.1} | {:.3} | {:.1} | {:.2} | {:.0} | {} |\n",
+            "| {} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.1} | {:.1} | {:.1} | {:.1} | {:.3} | {:.1} | {:.2} | {:.0} | {} |\n",
             r.category,
             r.instance,
             1e3 * r.known_pose.mean,
@@ -127,6 +127,7 @@ fn unit_table(rows: &[Row]) -> String {
             mean(&trials, |t| t.rotation_error_nocs.to_degrees()),
             mean(&trials, |t| t.tilt.to_degrees()),
             1e3 * mean(&trials, |t| t.z_error.abs()),
+            1e3 * mean(&trials, |t| t.z_error_known.abs()),
             mean(&trials, |t| t.size),
             1e3 * mean(&trials, |t| t.add_s),
             mean(&trials, |t| t.iou),

@@ -8,4 +8,5 @@ pub mod dataset;
 pub mod eval;
 pub mod metrics;
 pub mod plot;
+pub mod reference;
 pub mod surface;

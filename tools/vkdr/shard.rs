@@ -22,9 +22,9 @@ use vkdr_app::eval::Row;
 
 /// The shard file's name in a shard's --out.
 pub const FILE: &str = "shard.json";
-/// The shard file's format: 2 since trials carry the field's metrics (ADD-S, NOCS
-/// rotation, IoU, the gravity fallback) and the version its build's commit.
-const FORMAT: u32 = 2;
+/// The shard file's format, bumped with the trials' fields (3: the known pose's z error);
+/// a shard of another format is refused.
+const FORMAT: u32 = 3;
 
 /// The version of this build: the package's and the git commit it was built from.
 pub fn build_version() -> String {

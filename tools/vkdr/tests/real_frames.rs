@@ -177,16 +177,28 @@ fn a_frame_without_a_support_plane_is_a_row_not_an_exit() {
     without_table(&frames, &bop);
     // The default fallback: registered without gravity, and the trials say so.
     let out = dir.join("fallback");
-    ok(&[
+    // Both runs keep their shape spaces and the models' references in one folder.
+    let spaces = dir.join("spaces");
+    let first = ok(&[
         "eval-frames",
         s(&frames),
         "--images",
         "000000/1",
         "--trials",
         "2",
+        "--spaces",
+        s(&spaces),
         "--out",
         s(&out),
     ]);
+    let computing = "the model's oracle and space optimum";
+    assert!(first.contains(computing), "{first}");
+    let references: Vec<_> = std::fs::read_dir(spaces.join("references"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    assert_eq!(references.len(), 1, "{references:?}");
+    let kept = std::fs::read(&references[0]).unwrap();
     let table = table(&out);
     let mug = row(&table, "mug");
     for t in mug["trials"].as_array().unwrap() {
@@ -202,10 +214,15 @@ fn a_frame_without_a_support_plane_is_a_row_not_an_exit() {
         "2",
         "--gravity-fallback",
         "error",
+        "--spaces",
+        s(&spaces),
         "--out",
         s(&out),
     ]);
     let err = String::from_utf8_lossy(&result.stderr);
+    // The mug's reference was read, not fitted again, and is as it was.
+    assert!(!err.contains(computing), "{err}");
+    assert_eq!(std::fs::read(&references[0]).unwrap(), kept);
     assert!(!result.status.success());
     assert!(err.contains("1 of 2 units failed"), "{err}");
     let table = self::table(&out);

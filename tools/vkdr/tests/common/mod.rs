@@ -13,14 +13,13 @@ pub fn vkdr(args: &[&str]) -> Output {
         .unwrap()
 }
 
-/// Runs `vkdr` with `args`; fails the test with its error unless it succeeds.
-pub fn ok(args: &[&str]) {
+/// Runs `vkdr` with `args`; fails the test with its error unless it succeeds, else
+/// returns what it wrote to stderr (its progress).
+pub fn ok(args: &[&str]) -> String {
     let out = vkdr(args);
-    assert!(
-        out.status.success(),
-        "vkdr {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "vkdr {args:?}: {err}");
+    err
 }
 
 /// The error of a command that must fail.
