@@ -71,6 +71,10 @@ pub enum Error {
     /// An argument handed in by the caller is invalid.
     #[error("invalid input: {0}")]
     InvalidInput(String),
+    /// The caller's progress callback asked the work to stop
+    /// ([`crate::register::OnChunk`]): nothing of it is returned.
+    #[error("stopped by its progress callback")]
+    Stopped,
 }
 
 /// `std::result::Result` with [`Error`] as the default error type.

@@ -843,3 +843,48 @@ fn the_starts_turns_find_a_mug_s_handle() {
     );
     assert!(five < 5.0, "five starts end {five} degrees off");
 }
+
+/// A progress callback that returns `Break` stops the registration after that chunk with
+/// `Error::Stopped`; one returning `Continue` (or nothing) lets it run to its end.
+#[test]
+fn a_progress_callback_can_stop_a_registration() {
+    use std::ops::ControlFlow;
+    let ctx = common::context();
+    let space = space(&ctx);
+    let pose = Pose::new([0.0, 0.0, 0.6], [2.9, 0.3, 0.1]).unwrap();
+    let view = view(pose);
+    let observed = observe(
+        &ctx,
+        &space,
+        &space.vertices(&space.training_codes[2]).unwrap(),
+        view,
+    );
+    let registrar = Registrar::new(&ctx).unwrap();
+    let params = RegisterParams {
+        iterations: 40,
+        check_every: 10,
+        plateau: 0.0,
+        ..Default::default()
+    };
+    let job = Job::new(&space, &observed, view);
+    let mut chunks = Vec::new();
+    let full = registrar
+        .register(&ctx, job, &params, |done, _| {
+            chunks.push(done);
+            ControlFlow::Continue(())
+        })
+        .unwrap();
+    assert_eq!(chunks, [10, 20, 30, 40]);
+    assert_eq!(full.iterations, 40);
+    let mut calls = Vec::new();
+    let stopped = registrar.register(&ctx, job, &params, |done, _| {
+        calls.push(done);
+        match done >= 20 {
+            true => ControlFlow::Break(()),
+            false => ControlFlow::Continue(()),
+        }
+    });
+    assert!(matches!(stopped, Err(vkdr::Error::Stopped)), "{stopped:?}");
+    assert_eq!(calls, [10, 20]);
+    common::assert_no_validation_errors(&ctx);
+}

@@ -10,6 +10,7 @@
 //! first be aligned alone (`RegisterParams::align`). Codes are kept within 3 units of the
 //! optimiser's coordinates (projected steps; see `optimizer_coordinates`).
 
+use std::ops::ControlFlow;
 use std::time::Instant;
 
 use bytemuck::{Pod, Zeroable};
@@ -486,6 +487,44 @@ pub const SCALE_RANGE: (f64, f64) = (1.0 - CODE_BOUND * SCALE_UNIT, 1.0 + CODE_B
 /// The relative scale of one optimiser unit of the scale coordinate.
 const SCALE_UNIT: f64 = 0.25;
 
+/// What a registration calls after each chunk of iterations with the iterations done
+/// and the latest loss (progress bars): any `FnMut(usize, f64)`, returning nothing to go
+/// on or a [`ControlFlow`] whose `Break` stops the work with [`Error::Stopped`] (a
+/// cancelled job, Ctrl-C in a host language). The work stops between submissions, so
+/// within one chunk of [`RegisterParams::check_every`] iterations.
+pub trait OnChunk {
+    /// Called after each chunk; `Break` stops the registration.
+    fn chunk(&mut self, done: usize, loss: f64) -> ControlFlow<()>;
+}
+
+impl<F, R> OnChunk for F
+where
+    F: FnMut(usize, f64) -> R,
+    R: ChunkReply,
+{
+    fn chunk(&mut self, done: usize, loss: f64) -> ControlFlow<()> {
+        self(done, loss).flow()
+    }
+}
+
+/// What an [`OnChunk`] closure may return: nothing (go on) or a [`ControlFlow`].
+pub trait ChunkReply {
+    /// Whether to go on.
+    fn flow(self) -> ControlFlow<()>;
+}
+
+impl ChunkReply for () {
+    fn flow(self) -> ControlFlow<()> {
+        ControlFlow::Continue(())
+    }
+}
+
+impl ChunkReply for ControlFlow<()> {
+    fn flow(self) -> ControlFlow<()> {
+        self
+    }
+}
+
 /// Per squared radian of tilt past [`Gravity::tolerance`], as the optimisers add it to the
 /// loss (`glsl/include/objective.glsl`, GRAVITY_WEIGHT).
 pub const GRAVITY_WEIGHT: f64 = 100.0;
@@ -583,7 +622,7 @@ impl Registrar {
         ctx: &Context,
         job: Job,
         params: &RegisterParams,
-        on_chunk: impl FnMut(usize, f64),
+        on_chunk: impl OnChunk,
     ) -> Result<Registration> {
         let mut results = self.register_batch(ctx, &[job], params, on_chunk)?;
         Ok(results.remove(0))
@@ -607,7 +646,7 @@ impl Registrar {
         job: Job,
         starts: &[Pose],
         params: &RegisterParams,
-        on_chunk: impl FnMut(usize, f64),
+        on_chunk: impl OnChunk,
     ) -> Result<Registration> {
         if starts.is_empty() {
             return Err(Error::InvalidInput(
@@ -650,7 +689,7 @@ impl Registrar {
         ctx: &Context,
         jobs: &[Job],
         params: &RegisterParams,
-        on_chunk: impl FnMut(usize, f64),
+        on_chunk: impl OnChunk,
     ) -> Result<Vec<Registration>> {
         self.register_jobs(ctx, jobs, params, false, on_chunk)
     }
@@ -664,7 +703,7 @@ impl Registrar {
         jobs: &[Job],
         params: &RegisterParams,
         from_starts: bool,
-        mut on_chunk: impl FnMut(usize, f64),
+        mut on_chunk: impl OnChunk,
     ) -> Result<Vec<Registration>> {
         let started = Instant::now();
         params.validate()?;
@@ -912,7 +951,7 @@ impl Registrar {
         codes: Option<&[Vec<f32>]>,
         started: Instant,
         first: usize,
-        on_chunk: &mut impl FnMut(usize, f64),
+        on_chunk: &mut impl OnChunk,
     ) -> Result<Vec<Staged>> {
         // Only the region around the mask and the jobs' silhouettes is rendered and
         // compared where that is a small part of the image ([`Region`]); a stage whose fit
@@ -955,7 +994,7 @@ impl Registrar {
         codes: Option<&[Vec<f32>]>,
         started: Instant,
         first: usize,
-        on_chunk: &mut impl FnMut(usize, f64),
+        on_chunk: &mut impl OnChunk,
     ) -> Result<Vec<Staged>> {
         if jobs.is_empty() {
             return Ok(Vec::new());
@@ -1007,7 +1046,9 @@ impl Registrar {
                 }
             }
             let most = tasks.iter().map(|t| t.done).max().unwrap_or(0);
-            on_chunk(first + most, latest);
+            if on_chunk.chunk(first + most, latest).is_break() {
+                return Err(Error::Stopped);
+            }
         }
         tasks.iter().map(|task| task.staged(params)).collect()
     }

@@ -9,6 +9,8 @@
 //! height); images are `(height, width)` arrays. The device's work runs with the GIL
 //! released, one call at a time per `Device`.
 
+use std::ops::ControlFlow;
+
 use pyo3::exceptions::{PyOSError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 
@@ -44,7 +46,10 @@ impl<T> OrPy<T> for vkdr::Result<T> {
 }
 
 /// A Python progress callback, `progress(done, total)`, called from the device's work with
-/// the GIL taken for the call; the first exception it raises is raised when the work ends.
+/// the GIL taken for the call. The first exception it raises, or that a signal handler
+/// raises meanwhile (Ctrl-C's KeyboardInterrupt, with or without a callback), stops a
+/// registration between submissions ([`vkdr::register::OnChunk`]) and is raised when the
+/// work ends.
 struct Progress {
     callback: Option<Py<PyAny>>,
     error: std::sync::Mutex<Option<PyErr>>,
@@ -58,25 +63,35 @@ impl Progress {
         }
     }
 
-    fn call(&self, done: usize, total: usize) {
-        let Some(callback) = &self.callback else {
-            return;
+    /// Calls the callback and runs the signal handlers; `Break` once either raised.
+    fn call(&self, done: usize, total: usize) -> ControlFlow<()> {
+        let Ok(mut error) = self.error.lock() else {
+            return ControlFlow::Break(());
         };
+        if error.is_some() {
+            return ControlFlow::Break(());
+        }
         Python::attach(|py| {
-            if let Err(e) = callback.call1(py, (done, total)) {
-                if let Ok(mut error) = self.error.lock() {
-                    error.get_or_insert(e);
+            let called = match &self.callback {
+                Some(callback) => callback.call1(py, (done, total)).map(drop),
+                None => Ok(()),
+            };
+            match called.and_then(|()| py.check_signals()) {
+                Ok(()) => ControlFlow::Continue(()),
+                Err(e) => {
+                    *error = Some(e);
+                    ControlFlow::Break(())
                 }
             }
-        });
+        })
     }
 
-    /// The work's result, or the callback's first exception.
+    /// The callback's (or a signal handler's) exception where one was raised, the work
+    /// stopped by it; else the work's result.
     fn finish<T>(self, result: PyResult<T>) -> PyResult<T> {
-        let result = result?;
         match self.error.into_inner().ok().flatten() {
             Some(error) => Err(error),
-            None => Ok(result),
+            None => result,
         }
     }
 }

@@ -93,7 +93,8 @@ pub fn cpd<'py>(
         engine.run(|ctx, parts| {
             let total = params.max_iterations;
             vkdr::cpd::register(ctx, parts.cpd(ctx)?, &y, &x, &params, &mut |i, _| {
-                progress.call(i, total)
+                // CPD runs to its end (its iterations are one submission each).
+                let _ = progress.call(i, total);
             })
         })
     });
@@ -196,7 +197,9 @@ impl ShapeSpace {
                     &training,
                     dims,
                     &params,
-                    |done, total, _| progress.call(done, total),
+                    |done, total, _| {
+                        let _ = progress.call(done, total);
+                    },
                 )
             })
         });

@@ -2,6 +2,8 @@
 line writes them), the pose gradient against central differences, and the registration's
 results."""
 
+import signal
+
 import numpy as np
 import pytest
 
@@ -184,11 +186,27 @@ def test_progress_is_reported_and_its_exceptions_raised(device, space, mesh):
     assert seen and all(0 < done <= total == 30 for done, total in seen)
     assert [d for d, _ in seen] == sorted(d for d, _ in seen) and seen[-1][0] == result.iterations
 
+    # A callback that raises stops the registration at that chunk (it is called once,
+    # where the run above reported len(seen) chunks), and its exception is raised.
+    calls = []
+
     def stop(done, total):
+        calls.append(done)
         raise KeyError("stop here")
 
     with pytest.raises(KeyError, match="stop here"):
         device.register(space, mask, K, SIZE, POSE, progress=stop)
+    assert len(seen) > 1 and calls == [seen[0][0]]
+    # Ctrl-C (SIGINT) while the callback runs stops it the same way, as KeyboardInterrupt.
+    interrupts = []
+
+    def interrupt(done, total):
+        interrupts.append(done)
+        signal.raise_signal(signal.SIGINT)
+
+    with pytest.raises(KeyboardInterrupt):
+        device.register(space, mask, K, SIZE, POSE, progress=interrupt)
+    assert interrupts == [seen[0][0]]
     instances = []
     vertices, faces = mesh
     vkdr.ShapeSpace.build(vertices, faces, [lumpy(vertices, k) for k in range(3)], dims=2, device=device,
