@@ -125,14 +125,17 @@ fn sphere_matches_reference() {
     assert!(seen[0].pixels > seen[0].skipped_near_edges, "{seen:?}");
 }
 
+/// Views beyond one submission's chunk (`RENDER_CHUNK`, and a partial last chunk): each
+/// matches the CPU reference, and the batch is each view rendered alone, byte for byte.
 #[test]
 fn several_views_in_one_submission() {
     let mesh = Mesh::uv_sphere(0.1, 10, 14);
-    let views: Vec<View> = (0..4)
+    let count = vkdr::raster::RENDER_CHUNK + 3;
+    let views: Vec<View> = (0..count)
         .map(|k| View {
             camera: camera(96, 96),
             pose: Pose::new(
-                [0.03 * k as f64 - 0.05, 0.01, 0.4 + 0.1 * k as f64],
+                [0.01 * k as f64 - 0.05, 0.01, 0.4 + 0.02 * k as f64],
                 [0.4 * k as f64, 0.2, -0.1],
             )
             .unwrap(),
@@ -141,6 +144,27 @@ fn several_views_in_one_submission() {
     let seen = check_views(&mesh, &views);
     for s in &seen {
         assert!(s.covered > 300, "{seen:?}");
+    }
+    let ctx = common::context();
+    let rasterizer = Rasterizer::new(&ctx).unwrap();
+    let all = rasterizer
+        .render(&ctx, &mesh, &views, Outputs::IdsBaryDepth)
+        .unwrap();
+    for (k, view) in views.iter().enumerate() {
+        let alone = rasterizer
+            .render(&ctx, &mesh, &[*view], Outputs::IdsBaryDepth)
+            .unwrap();
+        let one = ndarray::s![k..k + 1, .., ..];
+        assert!(all.ids.slice(one) == alone.ids, "view {k}: ids");
+        assert!(
+            all.depth.as_ref().unwrap().slice(one) == alone.depth.unwrap(),
+            "view {k}: depth"
+        );
+        let bary = ndarray::s![k..k + 1, .., .., ..];
+        assert!(
+            all.bary.as_ref().unwrap().slice(bary) == alone.bary.unwrap(),
+            "view {k}: bary"
+        );
     }
 }
 

@@ -189,33 +189,37 @@ impl Buffer {
 
     /// Reads `count` values of `T` from byte `offset`.
     pub fn read_range<T: bytemuck::Pod>(&self, offset: u64, count: usize) -> Result<Vec<T>> {
-        let len = (count * std::mem::size_of::<T>()) as u64;
+        let mut out = vec![T::zeroed(); count];
+        self.read_range_into(offset, &mut out)?;
+        Ok(out)
+    }
+
+    /// Reads `out.len()` values of `T` from byte `offset` into `out`.
+    pub fn read_range_into<T: bytemuck::Pod>(&self, offset: u64, out: &mut [T]) -> Result<()> {
+        let len = std::mem::size_of_val(out) as u64;
         if offset + len > self.size {
             return Err(Error::InvalidInput(format!(
                 "read of {len} bytes at {offset} overruns buffer '{}' of {} bytes",
                 self.name, self.size
             )));
         }
-        let mut out = vec![T::zeroed(); count];
         if len == 0 {
-            return Ok(out);
+            return Ok(());
         }
         let range = offset as usize..(offset + len) as usize;
-        let out_bytes: &mut [u8] = bytemuck::cast_slice_mut(&mut out);
+        let out_bytes: &mut [u8] = bytemuck::cast_slice_mut(out);
         if let Some(()) = self.with_mapped(|mapped| out_bytes.copy_from_slice(&mapped[range])) {
-            return Ok(out);
+            return Ok(());
         }
         let staging = Buffer::new(self.ctx(), "staging readback", len, BufferKind::Readback)?;
         let mut rec = Recorder::new(self.ctx())?;
         rec.copy_buffer(self, offset, &staging, 0, len);
         self.ctx().submit_and_wait(rec)?;
-        let out_bytes: &mut [u8] = bytemuck::cast_slice_mut(&mut out);
         staging
             .with_mapped(|mapped| out_bytes.copy_from_slice(&mapped[..len as usize]))
             .ok_or_else(|| Error::Allocation {
                 name: "staging readback".into(),
                 reason: "readback memory is not host-visible and coherent".into(),
-            })?;
-        Ok(out)
+            })
     }
 }
