@@ -108,11 +108,7 @@ impl ShapeSpace {
     /// The same space with the category's up axis `up` (a nonzero direction, normalised
     /// here).
     pub fn with_up(self, up: DVec3) -> Result<Self> {
-        if !(up.is_finite() && up.length() > 0.0) {
-            return Err(Error::InvalidInput(format!(
-                "a shape space's up axis must be a nonzero direction, not {up}"
-            )));
-        }
+        check_up(up)?;
         Ok(Self {
             up: Some(up.normalize()),
             ..self
@@ -614,6 +610,17 @@ pub fn random_space(rng: &mut crate::rng::Rng, instances: usize, dims: usize) ->
         .collect();
     let names = (0..instances).map(|i| i.to_string()).collect();
     ShapeSpace::from_fits("test", &canonical, 0.1, &fits, dims, names).unwrap()
+}
+
+/// An error unless `up` is a nonzero, finite direction (a shape space's up axis,
+/// [`ShapeSpace::with_up`]): callers check it before a build that takes minutes.
+pub fn check_up(up: DVec3) -> Result<()> {
+    if !(up.is_finite() && up.length() > 0.0) {
+        return Err(Error::InvalidInput(format!(
+            "a shape space's up axis must be a nonzero direction, not {up}"
+        )));
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -271,49 +271,36 @@ pub fn run(args: &Args) -> Result<()> {
         let (category, up) = (&unit.category_name, checked[c].0);
         let name = &unit.instance_name;
         let obj_id = target.object.obj_id;
-        if let Entry::Vacant(slot) = references.entry(obj_id) {
-            let model = &models[&obj_id];
-            let free_scale = base.pose_noise.optimize_scale;
-            let reference = eval::Reference::cached(
-                args.spaces.as_deref(),
-                || eprint!("\r  obj_id {obj_id}: the model's oracle and space optimum "),
-                &ctx,
-                space,
-                model,
-                obj_id,
-                &base.cpd,
-                1.0,
-                free_scale,
-                up,
-            );
-            match reference {
-                Ok(reference) => {
-                    slot.insert(reference);
-                }
-                Err(e) => {
-                    eprintln!("\r  {name:<22} failed: {e:#}");
-                    failures.push(format!("{name} ({category}): the model's reference: {e:#}"));
-                    write_progress(
-                        out, &mut file, &placed, &failures, &base, &described, &device,
-                    )?;
-                    continue;
-                }
-            }
-        }
-        let reference = &references[&obj_id];
-        let frame = target.frame;
-        let pose = map[&target.object.obj_id]
-            .model_to_category
-            .inverse()
-            .followed_by(&target.object.model_to_camera);
-        let settings = EvalSettings {
-            camera: frame.camera,
-            distance: pose.translation.length(),
-            up,
-            ..base.clone()
-        };
         // A unit that fails is a row of the failures with its reason; the others go on.
-        let row = frame_scene(frame, target.object, pose).and_then(|scene| {
+        let evaluated = (|| -> Result<eval::Row> {
+            if let Entry::Vacant(slot) = references.entry(obj_id) {
+                let reference = eval::Reference::cached(
+                    args.spaces.as_deref(),
+                    || eprint!("\r  obj_id {obj_id}: the model's oracle and space optimum "),
+                    &ctx,
+                    space,
+                    &models[&obj_id],
+                    obj_id,
+                    &base.cpd,
+                    1.0,
+                    base.pose_noise.optimize_scale,
+                    up,
+                )
+                .context("the model's reference")?;
+                slot.insert(reference);
+            }
+            let frame = target.frame;
+            let pose = map[&obj_id]
+                .model_to_category
+                .inverse()
+                .followed_by(&target.object.model_to_camera);
+            let settings = EvalSettings {
+                camera: frame.camera,
+                distance: pose.translation.length(),
+                up,
+                ..base.clone()
+            };
+            let scene = frame_scene(frame, target.object, pose)?;
             Ok(eval::evaluate_instance(
                 &ctx,
                 &registrar,
@@ -324,32 +311,29 @@ pub fn run(args: &Args) -> Result<()> {
                 &settings,
                 TrialSource::Frame {
                     scene: &scene,
-                    reference,
+                    reference: &references[&obj_id],
                 },
                 |done, total| eprint!("\r  {name:<22} trial {done}/{total}  "),
             )?)
-        });
-        let row = match row {
-            Ok(row) => row,
+        })();
+        match evaluated {
+            Ok(row) => {
+                eprintln!(
+                    "\r  {name:<22} known pose {:.2} mm ({:.2}x the space optimum), pose noise as seen {:.2} mm",
+                    1e3 * row.known_pose.mean,
+                    row.known_pose.mean / row.space_optimum,
+                    1e3 * row.pose_noise_seen.mean
+                );
+                placed.push(shard::Placed {
+                    unit: unit.clone(),
+                    row,
+                });
+            }
             Err(e) => {
                 eprintln!("\r  {name:<22} failed: {e:#}");
                 failures.push(format!("{name} ({category}): {e:#}"));
-                write_progress(
-                    out, &mut file, &placed, &failures, &base, &described, &device,
-                )?;
-                continue;
             }
-        };
-        eprintln!(
-            "\r  {name:<22} known pose {:.2} mm ({:.2}x the space optimum), pose noise as seen {:.2} mm",
-            1e3 * row.known_pose.mean,
-            row.known_pose.mean / row.space_optimum,
-            1e3 * row.pose_noise_seen.mean
-        );
-        placed.push(shard::Placed {
-            unit: unit.clone(),
-            row,
-        });
+        }
         write_progress(
             out, &mut file, &placed, &failures, &base, &described, &device,
         )?;

@@ -164,7 +164,10 @@ impl ShapeSpace {
         let up = up
             .map(|u| -> PyResult<DVec3> {
                 let values = arrays::floats(u, "up")?.expect("up", &[Some(3)], "(3,)")?;
-                Ok(DVec3::from_slice(&values.data))
+                let up = DVec3::from_slice(&values.data);
+                // Before the build (minutes for a large category), not after it.
+                vkdr::shape::check_up(up).map_err(|e| bad("up", e))?;
+                Ok(up)
             })
             .transpose()?;
         let params = cpd_params(beta, lam, w, None, None)?;

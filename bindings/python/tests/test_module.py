@@ -121,6 +121,13 @@ def test_shape_space_agrees_with_the_command_line(device, mesh, cli, tmp_path):
                                   names=[f"instance{k}" for k in range(4)], device=device, up=[0, 1, 0])
     space.save(tmp_path / "module.npz")
     assert (tmp_path / "module.npz").read_bytes() == (tmp_path / "cli.npz").read_bytes()
+    # A bad up axis is refused before the build starts (no instance registered).
+    built = []
+    for up in ([0, 0, 0], [np.nan, 1, 0]):
+        with pytest.raises(ValueError, match="up"):
+            vkdr.ShapeSpace.build(vertices, faces, instances, dims=3, device=device, up=up,
+                                  progress=lambda done, total: built.append(done))
+    assert built == []
 
 
 def test_shape_space_round_trip(space, tmp_path):
