@@ -15,7 +15,6 @@
 use glam::{DMat3, DVec3};
 
 use crate::dataset::Rng;
-use crate::surface::Surface;
 use vkdr::camera::{Camera, Pose};
 use vkdr::cpd::CpdParams;
 use vkdr::diff::{DepthLoss, Scene, SceneDesc, Shading};
@@ -27,6 +26,10 @@ use vkdr::raster::{Outputs, View};
 use vkdr::register::{turned_starts, Gravity, Job, OtherView, RegisterParams, Registrar};
 use vkdr::shape::ShapeSpace;
 
+pub use crate::metrics::{
+    angle_between, pose_error, surface_error, surface_extent, symmetric_about,
+    symmetric_rotation_error,
+};
 pub use crate::reference::{space_optimum, surface_sample, Optimum, Reference, SAMPLE_POINTS};
 
 /// Mean over `a` of the distance to the nearest point of `b`.
@@ -34,26 +37,10 @@ pub fn mean_nearest(a: &[DVec3], b: &[DVec3]) -> f64 {
     if a.is_empty() || b.is_empty() {
         return f64::NAN;
     }
-    a.iter().map(|&p| nearest(p, b)).sum::<f64>() / a.len() as f64
-}
-
-/// The distance from `p` to the nearest of `points`.
-fn nearest(p: DVec3, points: &[DVec3]) -> f64 {
-    points
-        .iter()
-        .map(|q| (p - *q).length_squared())
-        .fold(f64::MAX, f64::min)
-        .sqrt()
-}
-
-/// The error: mean over `points` of the distance to the surface of the mesh with
-/// `vertices` and `triangles` (its nearest point on any triangle).
-pub fn surface_error(points: &[DVec3], vertices: &[DVec3], triangles: &[[u32; 3]]) -> f64 {
-    if points.is_empty() || triangles.is_empty() {
-        return f64::NAN;
-    }
-    let surface = Surface::new(vertices, triangles);
-    points.iter().map(|&p| surface.distance(p)).sum::<f64>() / points.len() as f64
+    a.iter()
+        .map(|&p| crate::metrics::nearest(p, b))
+        .sum::<f64>()
+        / a.len() as f64
 }
 
 /// Symmetric chamfer distance: the mean of both directions' mean nearest distances.
@@ -517,76 +504,11 @@ pub struct Trial {
     pub iou: f64,
 }
 
-/// The angle between two directions, radians.
-pub fn angle_between(a: DVec3, b: DVec3) -> f64 {
-    a.normalize().dot(b.normalize()).clamp(-1.0, 1.0).acos()
-}
-
 /// Angle (radians, 0 to pi/2) between the line of sight from the camera to the object's
 /// origin through `pose` and the object-frame `axis` (either way along it).
 pub fn line_of_sight_angle(pose: Pose, axis: DVec3) -> f64 {
     let sight = pose.rotation_matrix().transpose() * pose.translation.normalize();
     sight.dot(axis.normalize()).abs().min(1.0).acos()
-}
-
-/// Whether `points` (a surface sample) are rotationally symmetric about the axis `up`
-/// through their centroid: turned by 30, 90 and 150 degrees, 99% of the points lie within
-/// 3.5 times the sample's own spacing (the mean distance from a point to its nearest other
-/// point) of the unturned sample. Bottles, cans and bowls are (their 99th percentiles
-/// are 2.2-2.7 spacings); a mug with its handle (6.4-8.6) and a spray bottle with its
-/// trigger (6-9 at 90 degrees) are not. A mean would not tell: a handle is a few per cent
-/// of the surface, and the mugs' mean stayed within 1.7 spacings. At most 1000 of the
-/// points are used.
-pub fn symmetric_about(points: &[DVec3], up: DVec3) -> bool {
-    let step = points.len().div_ceil(1000).max(1);
-    let points: Vec<DVec3> = points.iter().step_by(step).copied().collect();
-    if points.len() < 2 {
-        return false;
-    }
-    let centre = vkdr::mesh::centroid(&points);
-    let spacing = points
-        .iter()
-        .enumerate()
-        .map(|(i, p)| {
-            points
-                .iter()
-                .enumerate()
-                .filter(|&(j, _)| j != i)
-                .map(|(_, q)| (*p - *q).length_squared())
-                .fold(f64::MAX, f64::min)
-                .sqrt()
-        })
-        .sum::<f64>()
-        / points.len() as f64;
-    [30f64, 90.0, 150.0].iter().all(|degrees| {
-        let turn = glam::DQuat::from_axis_angle(up.normalize(), degrees.to_radians());
-        let mut distances: Vec<f64> = points
-            .iter()
-            .map(|p| nearest(centre + turn * (*p - centre), &points))
-            .collect();
-        distances.sort_by(f64::total_cmp);
-        distances[distances.len() * 99 / 100] <= 3.5 * spacing
-    })
-}
-
-/// The rotation error of `estimate` against `truth` up to turns of the object about its
-/// `up` axis (the least over turns in steps of 0.25 degree, refined to 0.01 degree).
-pub fn symmetric_rotation_error(estimate: Pose, truth: Pose, up: DVec3) -> f64 {
-    let error = |angle: f64| {
-        let turn = DMat3::from_axis_angle(up.normalize(), angle);
-        let turned = Pose {
-            translation: truth.translation,
-            rotation: glam::DQuat::from_mat3(&(truth.rotation_matrix() * turn)).to_scaled_axis(),
-        };
-        pose_error(estimate, turned).0
-    };
-    let coarse = (0..1440)
-        .map(|k| (k as f64 * 0.25).to_radians())
-        .min_by(|a, b| error(*a).total_cmp(&error(*b)))
-        .unwrap_or(0.0);
-    (-25..=25)
-        .map(|k| error(coarse + (k as f64 * 0.01).to_radians()))
-        .fold(f64::INFINITY, f64::min)
 }
 
 /// The object-frame unit axes of `mesh`'s bounding box, longest extent first.
@@ -595,17 +517,6 @@ pub fn extent_axes(mesh: &Mesh) -> [DVec3; 3] {
     let mut order = [0, 1, 2];
     order.sort_by(|&a, &b| (hi[b] - lo[b]).total_cmp(&(hi[a] - lo[a])));
     order.map(|k| DVec3::from_array(std::array::from_fn(|j| if j == k { 1.0 } else { 0.0 })))
-}
-
-/// Rotation (radians) and translation (metres) from `truth` to `estimate`.
-pub fn pose_error(estimate: Pose, truth: Pose) -> (f64, f64) {
-    let relative = estimate.rotation_matrix() * truth.rotation_matrix().transpose();
-    let cos =
-        ((relative.x_axis.x + relative.y_axis.y + relative.z_axis.z - 1.0) / 2.0).clamp(-1.0, 1.0);
-    (
-        cos.acos(),
-        (estimate.translation - truth.translation).length(),
-    )
 }
 
 /// The mask of `mesh` rendered through `view`.
@@ -837,33 +748,6 @@ pub fn reverse_error(
 pub fn placed_like(vertices: &[DVec3], reference: &[DVec3]) -> Vec<DVec3> {
     let shift = centroid(reference) - centroid(vertices);
     vertices.iter().map(|&v| v + shift).collect()
-}
-
-/// Where a surface is and how large: the area-weighted centroid of the surface of
-/// `vertices` with `triangles`, and its root-mean-square distance from it (metres), whatever
-/// the mesh's vertex density.
-pub fn surface_extent(vertices: &[DVec3], triangles: &[[u32; 3]]) -> (DVec3, f64) {
-    let corners = |t: &[u32; 3]| t.map(|i| vertices[i as usize]);
-    let area_of = |[a, b, c]: [DVec3; 3]| 0.5 * (b - a).cross(c - a).length();
-    let (mut sum, mut area) = (DVec3::ZERO, 0.0);
-    for t in triangles {
-        let [a, b, c] = corners(t);
-        let weight = area_of([a, b, c]);
-        sum += weight * (a + b + c) / 3.0;
-        area += weight;
-    }
-    let area = area.max(f64::MIN_POSITIVE);
-    let centre = sum / area;
-    // A triangle's integral of |x|^2 over its area: A / 12 (sum |v|^2 + |sum v|^2).
-    let second: f64 = triangles
-        .iter()
-        .map(|t| {
-            let v = corners(t).map(|p| p - centre);
-            let squares: f64 = v.iter().map(|p| p.length_squared()).sum();
-            area_of(corners(t)) / 12.0 * (squares + (v[0] + v[1] + v[2]).length_squared())
-        })
-        .sum();
-    (centre, (second / area).sqrt())
 }
 
 /// The registered `vertices` (object frame) where the registration put them, in the true

@@ -8,7 +8,7 @@ use std::path::Path;
 use glam::DVec3;
 
 use crate::dataset::Rng;
-use crate::eval::{surface_error, surface_extent, symmetric_about};
+use crate::metrics::{surface_error, surface_extent, symmetric_about};
 use crate::surface::Surface;
 use vkdr::cpd::linalg::{self, Matrix};
 use vkdr::cpd::CpdParams;
