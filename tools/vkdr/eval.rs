@@ -927,13 +927,15 @@ pub fn evaluate_instance(
         TrialSource::Rendered => {
             computed = Reference::of(
                 ctx,
-                space,
-                test,
-                hash(name),
-                &settings.cpd,
-                floor_scale,
-                false,
-                settings.up,
+                &crate::reference::Model {
+                    space,
+                    test,
+                    seed: hash(name),
+                    cpd: &settings.cpd,
+                    scale: floor_scale,
+                    free_scale: false,
+                    up: settings.up,
+                },
             )?;
             &computed
         }
@@ -1223,9 +1225,9 @@ fn accumulate_curve(
 }
 
 fn hash(s: &str) -> u64 {
-    s.bytes().fold(0xcbf29ce484222325, |h, b| {
-        (h ^ b as u64).wrapping_mul(0x100000001b3)
-    })
+    let mut digest = crate::reference::Fnv::default();
+    digest.add(s.as_bytes());
+    digest.0
 }
 
 #[cfg(test)]

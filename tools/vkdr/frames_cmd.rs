@@ -274,17 +274,20 @@ pub fn run(args: &Args) -> Result<()> {
         // A unit that fails is a row of the failures with its reason; the others go on.
         let evaluated = (|| -> Result<eval::Row> {
             if let Entry::Vacant(slot) = references.entry(obj_id) {
+                let model = vkdr_app::reference::Model {
+                    space,
+                    test: &models[&obj_id],
+                    seed: obj_id,
+                    cpd: &base.cpd,
+                    scale: 1.0,
+                    free_scale: base.pose_noise.optimize_scale,
+                    up,
+                };
                 let reference = eval::Reference::cached(
                     args.spaces.as_deref(),
                     || eprint!("\r  obj_id {obj_id}: the model's oracle and space optimum "),
                     &ctx,
-                    space,
-                    &models[&obj_id],
-                    obj_id,
-                    &base.cpd,
-                    1.0,
-                    base.pose_noise.optimize_scale,
-                    up,
+                    &model,
                 )
                 .context("the model's reference")?;
                 slot.insert(reference);

@@ -232,24 +232,41 @@ pub struct Reference {
     pub asymmetric: Vec<DVec3>,
 }
 
+/// What a [`Reference`] is computed from, and all it depends on.
+#[derive(Clone, Copy)]
+pub struct Model<'a> {
+    pub space: &'a ShapeSpace,
+    /// The test model, in the category's frame.
+    pub test: &'a Mesh,
+    /// Seeds the surface sample.
+    pub seed: u64,
+    /// CPD's settings for the oracle.
+    pub cpd: &'a CpdParams,
+    /// Other than 1: the instance at its own size is `test` over it, and the references
+    /// are that instance's, scaled (where the scale is optimised the space with a scale
+    /// reaches exactly that).
+    pub scale: f64,
+    /// Whether the space optimum's scale is free too (a registration that fits the scale
+    /// is judged against that).
+    pub free_scale: bool,
+    /// The category's up axis, about which symmetry is judged.
+    pub up: DVec3,
+}
+
 impl Reference {
-    /// The reference of `test` in `space`: a surface sample of [`SAMPLE_POINTS`] (seeded
-    /// by `seed`), CPD's oracle, and the space optimum; with `scale` other than 1 those of
-    /// the instance at its own size, scaled (where the scale is optimised the space with
-    /// a scale reaches exactly that); with `free_scale` the optimum's scale is free too
-    /// (a registration that fits the scale is judged against that); what breaks its
-    /// symmetry about `up`.
-    #[allow(clippy::too_many_arguments)]
-    pub fn of(
-        ctx: &Context,
-        space: &ShapeSpace,
-        test: &Mesh,
-        seed: u64,
-        cpd: &CpdParams,
-        scale: f64,
-        free_scale: bool,
-        up: DVec3,
-    ) -> Result<Self> {
+    /// The reference of `model.test` in `model.space`: a surface sample of
+    /// [`SAMPLE_POINTS`], CPD's oracle, the space optimum, and what breaks its symmetry
+    /// about the up axis ([`Model`]).
+    pub fn of(ctx: &Context, model: &Model) -> Result<Self> {
+        let Model {
+            space,
+            test,
+            seed,
+            cpd,
+            scale,
+            free_scale,
+            up,
+        } = *model;
         let truth = surface_sample(test, SAMPLE_POINTS, seed);
         let symmetric = symmetric_about(&truth, up);
         let asymmetric = match symmetric {
@@ -308,27 +325,20 @@ impl Reference {
     /// axis), computed and saved where not. So shards of one run, and runs after it, fit
     /// each model's oracle and space optimum once. A file that cannot be read is computed
     /// anew and replaced, with a warning. `computing` is called before a computation.
-    #[allow(clippy::too_many_arguments)]
     pub fn cached(
         dir: Option<&Path>,
         computing: impl FnOnce(),
         ctx: &Context,
-        space: &ShapeSpace,
-        test: &Mesh,
-        seed: u64,
-        cpd: &CpdParams,
-        scale: f64,
-        free_scale: bool,
-        up: DVec3,
+        model: &Model,
     ) -> Result<Self> {
         let compute = || {
             computing();
-            Self::of(ctx, space, test, seed, cpd, scale, free_scale, up)
+            Self::of(ctx, model)
         };
         let Some(dir) = dir else {
             return compute();
         };
-        let key = cache_key(space, test, seed, cpd, scale, free_scale, up);
+        let key = cache_key(model);
         let path = dir.join("references").join(format!("{key}.json"));
         if path.exists() {
             match read_stored(&path, &key) {
@@ -385,15 +395,16 @@ fn read_stored(path: &Path, key: &str) -> Result<Reference> {
 }
 
 /// A digest (FNV-1a, 64 bits, as hex) of everything [`Reference::of`] depends on.
-fn cache_key(
-    space: &ShapeSpace,
-    test: &Mesh,
-    seed: u64,
-    cpd: &CpdParams,
-    scale: f64,
-    free_scale: bool,
-    up: DVec3,
-) -> String {
+fn cache_key(model: &Model) -> String {
+    let Model {
+        space,
+        test,
+        seed,
+        cpd,
+        scale,
+        free_scale,
+        up,
+    } = *model;
     let mut digest = Fnv::default();
     digest.add(&CACHE_FORMAT.to_le_bytes());
     digest.add(space.category.as_bytes());
@@ -432,8 +443,8 @@ fn cache_key(
 }
 
 /// FNV-1a over bytes: a stable digest (the same in every build), enough to tell inputs
-/// apart where no adversary chooses them.
-struct Fnv(u64);
+/// apart where no adversary chooses them (the evaluation's seeds per name too).
+pub(crate) struct Fnv(pub(crate) u64);
 
 impl Default for Fnv {
     fn default() -> Self {
@@ -442,7 +453,7 @@ impl Default for Fnv {
 }
 
 impl Fnv {
-    fn add(&mut self, bytes: &[u8]) {
+    pub(crate) fn add(&mut self, bytes: &[u8]) {
         for &b in bytes {
             self.0 = (self.0 ^ b as u64).wrapping_mul(0x100000001b3);
         }
