@@ -1571,10 +1571,16 @@ fn relative_turns(jobs: &[Job]) -> Vec<DMat3> {
 /// Iterated closest points on at most 1000 vertices (found in a grid: a scan of all made
 /// this 200 ms of a 0.9 s registration on lavapipe); the two turns' opposite biases along
 /// the turn (the nearest vertex lies behind or ahead of a turned one) cancel. The origin
-/// for no vertices.
+/// for no finite vertices.
 pub fn symmetry_pivot(vertices: &[DVec3], axis: DVec3) -> DVec3 {
     let step = vertices.len().div_ceil(1000).max(1);
-    let points: Vec<DVec3> = vertices.iter().step_by(step).copied().collect();
+    // A non-finite vertex is no one's nearest (the grid needs finite points).
+    let points: Vec<DVec3> = vertices
+        .iter()
+        .step_by(step)
+        .copied()
+        .filter(|p| p.is_finite())
+        .collect();
     let axis = axis.normalize();
     let across = |v: DVec3| v - axis * axis.dot(v);
     let half_turn = 15f64.to_radians();
@@ -1686,6 +1692,24 @@ mod tests {
             across(pivot - axis_at).length() < 5e-4,
             "{pivot} against {axis_at}"
         );
+    }
+
+    /// A non-finite vertex (a diverged fit) is left out rather than poisoning the pivot;
+    /// with none finite the pivot is the origin.
+    #[test]
+    fn the_symmetry_pivot_leaves_non_finite_vertices_out() {
+        let axis = DVec3::Y;
+        let ring: Vec<DVec3> = (0..40)
+            .map(|k| {
+                let a = k as f64 * std::f64::consts::TAU / 40.0;
+                DVec3::new(0.02 + 0.04 * a.cos(), 0.0, 0.04 * a.sin())
+            })
+            .collect();
+        let mut with_nan = ring.clone();
+        with_nan.insert(7, DVec3::new(f64::NAN, 0.0, 0.0));
+        with_nan.push(DVec3::splat(f64::INFINITY));
+        assert_eq!(symmetry_pivot(&with_nan, axis), symmetry_pivot(&ring, axis));
+        assert_eq!(symmetry_pivot(&[DVec3::NAN], axis), DVec3::ZERO);
     }
 
     /// The starts alternate sides at growing turns, and a turn about the object's up axis

@@ -17,8 +17,9 @@ pub(super) struct Nearest<'a> {
 }
 
 impl<'a> Nearest<'a> {
-    /// The grid of `points` (not empty), cells sized for about one point each.
+    /// The grid of `points` (not empty, finite), cells sized for about one point each.
     pub(super) fn new(points: &'a [DVec3]) -> Self {
+        debug_assert!(!points.is_empty() && points.iter().all(|p| p.is_finite()));
         let (low, high) = points.iter().fold(
             (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
             |(l, h), &p| (l.min(p), h.max(p)),
