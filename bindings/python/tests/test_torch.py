@@ -165,3 +165,72 @@ def test_silhouette_loss_under_torch_func_grad(device, scene):
     grad = torch.func.grad(lambda x: silhouette_loss(x, torch.tensor(POSE), faces, K, SIZE, mask, device=device))(v)
     _, grad_vertices, _ = device.loss_and_grad(vertices, faces, K, SIZE, POSE, mask)
     assert np.array_equal(grad.numpy(), grad_vertices.astype(np.float64))
+
+
+def test_silhouette_composes_to_vkdr_loss(device, scene):
+    """rasterize -> silhouette -> a mean squared error in torch is vkdr's own mse loss, its
+    value and its exact edge gradients (float32 rounding), for the vertices and the pose;
+    a batch of poses gives each pose's image."""
+    import vkdr.torch as vt
+
+    vertices, faces, mask = scene
+    loss, grad_vertices, grad_pose = device.loss_and_grad(vertices, faces, K, SIZE, POSE, mask)
+    v = torch.tensor(vertices, requires_grad=True)
+    p = torch.tensor(POSE, requires_grad=True)
+    image = vt.silhouette(vt.rasterize(v, faces, K, SIZE, p, device=device), v, faces, K, p)
+    assert ((image > 0) & (image < 1)).sum() > 100  # edges were antialiased
+    composed = ((image - torch.tensor(mask, dtype=torch.float64)) ** 2).mean()
+    composed.backward()
+    assert abs(composed.item() - loss) < 1e-5 * loss
+    assert np.linalg.norm(v.grad.numpy() - grad_vertices) < 1e-4 * np.linalg.norm(grad_vertices)
+    assert np.linalg.norm(p.grad.numpy() - grad_pose) < 1e-4 * np.linalg.norm(grad_pose)
+    poses = torch.tensor(np.stack([POSE, POSE + np.array([0.01, 0.0, 0.02, 0.2, -0.1, 0.3])]))
+    both = vt.silhouette(vt.rasterize(v, faces, K, SIZE, poses, device=device), v, faces, K, poses)
+    # (The same terms, added in another order where a pixel has several pairs.)
+    assert torch.allclose(both[0], image, rtol=0, atol=1e-12)
+    second = vt.rasterize(v, faces, K, SIZE, poses[1], device=device)
+    assert torch.allclose(both[1], vt.silhouette(second, v, faces, K, poses[1]), rtol=0, atol=1e-12)
+
+
+def test_antialias_gradients_match_central_differences(device):
+    """gradcheck (float64) of rasterize's fragments -> interpolate -> antialias in the
+    vertices, the pose and the colours, the visibility held, on two spheres, one partly
+    behind the other (the front one's edges antialiased over the back one)."""
+    import vkdr.torch as vt
+
+    front, faces = sphere(radius=0.045, rings=6, segments=8)
+    back = front * 1.2 + np.float32([0.045, 0.02, 0.06])
+    vertices = np.concatenate([front, back]).astype(np.float64)
+    faces = np.concatenate([faces, faces + len(front)])
+    k = np.array([[70.0, 0, 32], [0, 70.0, 32], [0, 0, 1]])
+    pose = np.array([-0.01, 0.0, 0.35, 0.1, -0.1, 0.05])
+    frags = vt.rasterize(torch.tensor(vertices), faces, k, (64, 64), torch.tensor(pose), device=device)
+    triangle = frags.triangle
+    front_faces, back_faces = (triangle >= 0) & (triangle < len(faces) // 2), triangle >= len(faces) // 2
+    assert front_faces.sum() > 200 and back_faces.sum() > 100
+    colours = torch.rand(len(vertices), 2, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+    weights = torch.rand(64, 64, 2, generator=torch.Generator().manual_seed(2), dtype=torch.float64)
+
+    def f(v, p, c):
+        fragments = vt.barycentrics(triangle, v, faces, k, p)
+        image = vt.antialias(vt.interpolate(c, fragments, faces), fragments, v, faces, k, p)
+        return (image * weights).sum()
+
+    inputs = (torch.tensor(vertices, requires_grad=True), torch.tensor(pose, requires_grad=True), colours.requires_grad_())
+    with torch.no_grad():
+        fragments = vt.barycentrics(triangle, inputs[0], faces, k, inputs[1])
+        plain = vt.interpolate(colours, fragments, faces)
+        changed = (vt.antialias(plain, fragments, inputs[0], faces, k, inputs[1]) != plain).any(-1)
+    # Along the outer silhouette and where the front sphere covers the back one.
+    assert changed.sum() > 50 and (changed & back_faces).sum() > 5
+    assert torch.autograd.gradcheck(f, inputs, eps=1e-7, atol=1e-6, rtol=1e-4)
+
+
+def test_antialias_refuses_an_image_of_another_size(device, scene):
+    import vkdr.torch as vt
+
+    vertices, faces, _ = scene
+    v = torch.tensor(vertices)
+    frags = vt.rasterize(v, faces, K, SIZE, torch.tensor(POSE), device=device)
+    with pytest.raises(ValueError, match="matching the fragments"):
+        vt.antialias(torch.zeros(10, 10, 3), frags, v, faces, K, torch.tensor(POSE))

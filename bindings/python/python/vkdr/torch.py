@@ -7,6 +7,9 @@ gradients.
     loss = ((colour - target) ** 2).mean() + ((frags.depth - depth) ** 2).mean()
     loss.backward()                                                     # vertices, pose, colours
 
+    colour = vt.antialias(colour, frags, vertices, faces, K, pose)     # the edges' gradients too
+    loss = ((vt.silhouette(frags, vertices, faces, K, pose) - mask) ** 2).mean()
+
     loss = vt.silhouette_loss(vertices, pose, faces, K, (width, height), mask)
     loss.backward()        # vertices.grad (V x 3) and pose.grad (6,) from vkdr
 
@@ -14,8 +17,9 @@ gradients.
 `vkdr.Device.rasterize`) and recomputes, in torch, where the pixel's ray meets that
 triangle: perspective-correct barycentrics and depth, differentiable in the vertices and
 the pose (as nvdiffrast's `rasterize`). Which triangle a pixel sees does not move with
-them, so a rendering's gradients are those of the triangles' interiors; where the
-silhouette's edges matter (a mask), `silhouette_loss` has vkdr's exact edge gradients.
+them, so a rendering's gradients are those of the triangles' interiors. `antialias`
+adds the silhouette edges' (vkdr's own antialiasing, exact at any tessellation) to any
+image; `silhouette_loss` is the engine's built-in mask and depth loss, the fast path.
 
 `vertices` (V x 3) and `pose` (6: translation in metres, axis-angle in radians; x_camera =
 R x + t) are tensors, either of which may require grad; `K` is vkdr's (pixel (i, j)'s
@@ -232,4 +236,227 @@ def silhouette_loss(vertices, pose, faces, K, size, mask, loss="mse", depth=None
     return value
 
 
-__all__ = ["Fragments", "SilhouetteLoss", "barycentrics", "interpolate", "rasterize", "rotation_matrix", "silhouette_loss"]
+# --- Antialiasing: vkdr's silhouette edges for any image --------------------------------
+#
+# The same rule as vkdr's own pass (glsl/include/diff.glsl; its float64 reference is
+# src/diff/reference.rs): for two adjacent pixels seeing different triangles, the front
+# one's surface is walked along the segment between their centres to the silhouette edge
+# it leaves by (an edge without a neighbour, or whose neighbour faces the other way); the
+# edge crosses the segment at alpha (0 at the front centre). Past the middle, the front
+# colour reaches into the other pixel by alpha - 1/2; before it, the other colour into the
+# front pixel by 1/2 - alpha. Each edge is taken along x or along y, whichever its
+# function changes faster along. The walk (which edge) is found without gradients; alpha
+# is recomputed from that edge's corners in torch, so the image's gradients reach the
+# vertices and the pose through where the edge crosses.
+
+NO_NEIGHBOUR = -1
+MAX_WALK = 65536
+
+
+def _neighbours(faces):
+    """For each face t and corner k, the face across the edge opposite k (index 3 t + k),
+    or -1 for an edge without exactly one other face (vkdr::diff::neighbours)."""
+    f = np.asarray(faces, dtype=np.int64)
+    count = len(f)
+    proper = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])
+    a, b = f[:, [1, 2, 0]], f[:, [2, 0, 1]]
+    key = (np.minimum(a, b) * (int(f.max(initial=0)) + 1) + np.maximum(a, b))[proper].ravel()
+    slot = (3 * np.arange(count)[:, None] + np.arange(3)).reshape(count, 3)[proper].ravel()
+    order = np.argsort(key, kind="stable")
+    key, slot = key[order], slot[order]
+    _, first, shared = np.unique(key, return_index=True, return_counts=True)
+    s0, s1 = slot[first[shared == 2]], slot[first[shared == 2] + 1]
+    out = np.full(3 * count, NO_NEIGHBOUR, dtype=np.int64)
+    out[s0], out[s1] = s1 // 3, s0 // 3
+    return out
+
+
+def _cross2(a, b):
+    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+
+
+def _edge_function(ci, cj, p):
+    """The homogeneous edge function of corners ci, cj (x, y, w) at the pixel p."""
+    return _cross2(ci[..., :2] - p * ci[..., 2:], cj[..., :2] - p * cj[..., 2:])
+
+
+def _corner(c, index):
+    """c[n, index[n]] for corners c (P, 3, 3) and index (P,)."""
+    return c[np.arange(len(index)), index]
+
+
+def _walk_edge_function(c, v, k, p):
+    """The function of the edge opposite corner k, from its vertices in index order (so
+    both faces sharing it agree exactly), as glsl's walk_edge_function."""
+    i, j = (k + 1) % 3, (k + 2) % 3
+    ci, cj = _corner(c, i), _corner(c, j)
+    swap = _corner(v, i) > _corner(v, j)
+    first = np.where(swap[:, None], cj, ci)
+    second = np.where(swap[:, None], ci, cj)
+    e = _edge_function(first, second, p)
+    return np.where(swap, -e, e)
+
+
+def _facing(c):
+    return np.sign(np.linalg.det(c))
+
+
+def _left_of_line(c, pf, d):
+    """Which side of the line through pf along d each corner (P, 3, 3) lies on."""
+    return _cross2(d[:, None], c[..., :2] - pf[:, None] * c[..., 2:]) >= 0.0
+
+
+def _crossings(h, faces, neighbours, view, start, pf, pb):
+    """The silhouette edge each segment pf -> pb leaves the surface of face `start` by (in
+    view `view`, homogeneous pixel corners h (N, V, 3)): (face, edge opposite corner), -1
+    where the segment ends on that surface or its line misses the first face."""
+    count = len(start)
+    d = pb - pf
+    found_face = np.full(count, -1, dtype=np.int64)
+    found_edge = np.zeros(count, dtype=np.int64)
+    corners = lambda rows, t: h[view[rows, None], faces[t]]
+    rows = np.arange(count)
+    c = corners(rows, start)
+    v = faces[start]
+    inside = _facing(c)
+    # The first face's exit: of the edges the line crosses, the one it leaves by.
+    left = _left_of_line(c, pf, d)
+    score = np.full((count, 3), -np.inf)
+    for k in range(3):
+        kk = np.full(count, k)
+        crosses = left[:, (k + 1) % 3] != left[:, (k + 2) % 3]
+        outward = (_walk_edge_function(c, v, kk, pf) - _walk_edge_function(c, v, kk, pb)) * inside
+        score[:, k] = np.where(crosses, outward, -np.inf)
+    edge = score.argmax(1)
+    active = np.isfinite(score.max(1))
+    current = start.copy()
+    for _ in range(MAX_WALK):
+        rows = np.flatnonzero(active)
+        if len(rows) == 0:
+            return found_face, found_edge
+        t, k = current[rows], edge[rows]
+        c, v = corners(rows, t), faces[t]
+        eb = _walk_edge_function(c, v, k, pb[rows])
+        ends = eb * inside[rows] >= 0.0  # pb lies on this surface: no silhouette between
+        following = neighbours[3 * t + k]
+        silhouette = following == NO_NEIGHBOUR
+        beyond = np.flatnonzero(~silhouette)
+        silhouette[beyond] = _facing(corners(rows[beyond], following[beyond])) != inside[rows[beyond]]
+        hit = ~ends & silhouette
+        found_face[rows[hit]], found_edge[rows[hit]] = t[hit], k[hit]
+        walk = ~ends & ~silhouette
+        active[rows[~walk]] = False
+        rows, t, k, v = rows[walk], following[walk], k[walk], v[walk]
+        # The next exit: by the side of the line the corner opposite the entry edge lies on.
+        entry = np.stack([_corner(v, (k + 1) % 3), _corner(v, (k + 2) % 3)], 1)
+        w = faces[t]
+        on_entry = (w[:, :, None] == entry[:, None, :]).any(-1)
+        if not (on_entry.sum(1) == 2).all():
+            raise RuntimeError("vkdr.torch.antialias: the faces' neighbour table does not match them")
+        apex = (~on_entry).argmax(1)
+        left = _left_of_line(corners(rows, t), pf[rows], d[rows])
+        i, j = (apex + 1) % 3, (apex + 2) % 3
+        edge[rows] = np.where(_corner(left, i) != _corner(left, apex), j, i)
+        current[rows] = t
+    raise RuntimeError(f"vkdr.torch.antialias: a silhouette search crossed {MAX_WALK} faces without an end")
+
+
+def _homogeneous(vertices, pose, K):
+    """Camera-space corners as homogeneous pixel coordinates (fx x + cx z, fy y + cy z, z),
+    (N, V, 3), differentiable in `vertices` (V, 3) and `pose` (N, 6)."""
+    fx, fy, cx, cy = _intrinsics(K)
+    camera = vertices[None] @ rotation_matrix(pose[:, 3:]).transpose(-1, -2) + pose[:, None, :3]
+    x, y, z = camera.unbind(-1)
+    return torch.stack([fx * x + cx * z, fy * y + cy * z, z], -1)
+
+
+def antialias(image, fragments, vertices, faces, K, pose):
+    """`image` (H, W, C) with its silhouette edges antialiased as vkdr antialiases its
+    own renderings (nvdiffrast's `antialias`, with vkdr's walk to the edge: exact at any
+    tessellation and behind occluders): differentiable in `image` and, through where each
+    silhouette edge crosses between pixel centres, in `vertices` and `pose`. `fragments`
+    are `rasterize`'s for the same mesh, camera and pose (6,); for poses (N, 6), `image` is
+    (N, H, W, C). The image may hold anything per pixel: coverage, interpolated
+    attributes, shading, depth."""
+    vertices = torch.as_tensor(vertices)
+    pose = torch.as_tensor(pose, device=vertices.device)
+    image = torch.as_tensor(image, device=vertices.device)
+    batched = pose.dim() == 2
+    triangle, depth = fragments.triangle, fragments.depth
+    if not batched:
+        pose, triangle, depth, image = pose[None], triangle[None], depth[None], image[None]
+    if image.dim() != 4 or image.shape[:3] != triangle.shape:
+        raise ValueError(
+            f"image: expected (H, W, C) or (N, H, W, C) matching the fragments' {tuple(triangle.shape)}, "
+            f"got {tuple(image.shape)}"
+        )
+    dtype = torch.promote_types(torch.promote_types(vertices.dtype, pose.dtype), image.dtype)
+    faces_np = np.asarray(_numpy(faces), dtype=np.int64)
+    h = _homogeneous(vertices.to(dtype), pose.to(dtype), K)
+    n, height, width = triangle.shape
+    tri = triangle.detach().cpu().numpy()
+    z = np.where(tri >= 0, depth.detach().cpu().to(torch.float64).numpy(), np.inf)
+    views, rows_f, cols_f, rows_g, cols_g, faces_f, edges = [], [], [], [], [], [], []
+    neighbours = _neighbours(faces_np)
+    h_np = h.detach().cpu().to(torch.float64).numpy()
+    for along_x in (True, False):
+        a = tri[:, :, :-1] if along_x else tri[:, :-1, :]
+        b = tri[:, :, 1:] if along_x else tri[:, 1:, :]
+        view, i, j = np.nonzero(a != b)
+        qi, qj = (i, j + 1) if along_x else (i + 1, j)
+        p_front = z[view, i, j] <= z[view, qi, qj]
+        fi, fj = np.where(p_front, i, qi), np.where(p_front, j, qj)
+        gi, gj = np.where(p_front, qi, i), np.where(p_front, qj, j)
+        centre = lambda r, c: np.stack([c + 0.5, r + 0.5], -1).astype(np.float64)
+        face, edge = _crossings(h_np, faces_np, neighbours, view, tri[view, fi, fj], centre(fi, fj), centre(gi, gj))
+        found = np.flatnonzero(face >= 0)
+        c = h_np[view[found, None], faces_np[face[found]]]
+        e = edge[found]
+        ci, cj = _corner(c, (e + 1) % 3), _corner(c, (e + 2) % 3)
+        lx = ci[:, 1] * cj[:, 2] - ci[:, 2] * cj[:, 1]
+        ly = ci[:, 2] * cj[:, 0] - ci[:, 0] * cj[:, 2]
+        keep = found[(np.abs(lx) >= np.abs(ly)) == along_x]
+        for out, value in zip(
+            (views, rows_f, cols_f, rows_g, cols_g, faces_f, edges), (view, fi, fj, gi, gj, face, edge)
+        ):
+            out.append(value[keep])
+    view, fi, fj, gi, gj, face, edge = (torch.from_numpy(np.concatenate(x)).to(image.device) for x in (views, rows_f, cols_f, rows_g, cols_g, faces_f, edges))
+    faces_t = torch.from_numpy(faces_np).to(image.device)
+    corners = faces_t[face]
+    ci = h[view, corners.gather(1, ((edge + 1) % 3)[:, None])[:, 0]]
+    cj = h[view, corners.gather(1, ((edge + 2) % 3)[:, None])[:, 0]]
+    pixel = lambda r, c: torch.stack([c, r], -1).to(dtype) + 0.5
+    ef = _edge_function(ci, cj, pixel(fi, fj))
+    eb = _edge_function(ci, cj, pixel(gi, gj))
+    alpha = ef / (ef - eb)
+    weight = (alpha.clamp(0.0, 1.0) - 0.5).abs()
+    reaches = alpha.detach() > 0.5  # the front surface reaches into the other pixel
+    flat = image.to(dtype).reshape(n * height * width, -1)
+    index_f = (view * height + fi) * width + fj
+    index_g = (view * height + gi) * width + gj
+    changed = torch.where(reaches, index_g, index_f)
+    source = torch.where(reaches, index_f, index_g)
+    out = flat.index_add(0, changed, weight[:, None] * (flat[source] - flat[changed]))
+    out = out.reshape(n, height, width, -1)
+    return out if batched else out[0]
+
+
+def silhouette(fragments, vertices, faces, K, pose):
+    """The antialiased coverage (H, W), or (N, H, W): 1 inside the mesh, 0 outside, and
+    between them where a silhouette edge crosses; differentiable in `vertices` and `pose`
+    (vkdr's exact edge gradients, as `silhouette_loss` uses them)."""
+    covered = (fragments.triangle >= 0).to(torch.as_tensor(vertices).dtype)
+    return antialias(covered[..., None], fragments, vertices, faces, K, pose)[..., 0]
+
+
+__all__ = [
+    "Fragments",
+    "SilhouetteLoss",
+    "antialias",
+    "barycentrics",
+    "interpolate",
+    "rasterize",
+    "rotation_matrix",
+    "silhouette",
+    "silhouette_loss",
+]
