@@ -184,7 +184,11 @@ pub fn run(args: &Args) -> Result<()> {
             "eval",
             &merge[0],
             &merge[1..],
-            |line| settings(&<Flags as clap::Parser>::try_parse_from(line)?.args),
+            |line| {
+                let settings = settings(&<Flags as clap::Parser>::try_parse_from(line)?.args)?;
+                let resolved = shard::resolved(&settings);
+                Ok((settings, resolved))
+            },
             |out, rows, _, settings, device| match rows.is_empty() {
                 true => Ok(()),
                 false => write_reports(out, rows, settings, device),
@@ -343,6 +347,7 @@ fn evaluate(
                     shard::ShardFile::new(
                         "eval",
                         shard::run_flags("eval"),
+                        shard::resolved(&settings),
                         shard,
                         device.clone(),
                         units.to_vec(),

@@ -149,7 +149,9 @@ pub fn run(args: &Args) -> Result<()> {
                 let run = <Flags as clap::Parser>::try_parse_from(line)?.args;
                 let frames = read_frames(&run)?;
                 let units = frames.iter().map(|f| f.objects.len()).sum();
-                Ok((settings(&run)?, describe(&frames, units)))
+                let settings = settings(&run)?;
+                let resolved = shard::resolved(&settings);
+                Ok(((settings, describe(&frames, units)), resolved))
             },
             |out, rows, failures, (settings, frames), device| {
                 crate::frames_report::write(out, rows, failures, settings, frames, device)
@@ -238,6 +240,7 @@ pub fn run(args: &Args) -> Result<()> {
         shard::ShardFile::new(
             "eval-frames",
             shard::run_flags("eval-frames"),
+            shard::resolved(&base),
             shard,
             device.clone(),
             units.clone(),

@@ -7,9 +7,11 @@
 //! cost so far (the canonical's vertices per unit: a registration's cost follows them);
 //! every shard computes the same assignment from the same dataset. A shard writes its rows
 //! to `shard.json` exactly (every number read back to the same f64), with the run's flags,
-//! the version and its place K of N; the merge refuses missing, repeated or foreign shards
-//! and writes the tables from the rows in the unsharded order, so they are the same bytes
-//! as one process's (the wall times aside).
+//! the settings they resolved to (every parameter, defaults included), the version and its
+//! place K of N; the merge refuses missing, repeated or foreign shards, and shards whose
+//! settings the merging build would not resolve the same flags to (a default changed
+//! between them), and writes the tables from the rows in the unsharded order, so they are
+//! the same bytes as one process's (the wall times aside).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -22,9 +24,9 @@ use vkdr_app::eval::Row;
 
 /// The shard file's name in a shard's --out.
 pub const FILE: &str = "shard.json";
-/// The shard file's format, bumped with the trials' fields (3: the known pose's z error);
-/// a shard of another format is refused.
-const FORMAT: u32 = 3;
+/// The shard file's format, bumped with its fields and the trials' (3: the known pose's z
+/// error; 4: the resolved settings); a shard of another format is refused.
+const FORMAT: u32 = 4;
 
 /// The version of this build: the package's and the git commit it was built from.
 pub fn build_version() -> String {
@@ -111,15 +113,24 @@ pub fn out_folder<'a>(merge: &'a Option<Vec<PathBuf>>, out: &'a Option<PathBuf>)
     }
 }
 
+/// The settings a run resolved its flags to, every parameter with its value (defaults
+/// included), as a shard stores them and the merge compares them: Rust's `Debug` form,
+/// whose numbers read back to the same f64.
+pub fn resolved(settings: &impl std::fmt::Debug) -> String {
+    format!("{settings:#?}")
+}
+
 /// Merges the shards of a `command` run in `dirs` and writes its tables into `out` with
 /// `write` (the rows, the failures, what `settings_of` read back from the run's command
-/// line: the command, its flags and `--out`; and the device). An error when a unit failed
-/// in a shard, after the tables are written.
+/// line: the command, its flags and `--out`, with their [`resolved`] form; and the device).
+/// The settings are those the shards ran: where this build resolves their flags to other
+/// settings (a default changed since), an error says which and nothing is written. An
+/// error when a unit failed in a shard, after the tables are written.
 pub fn write_merged<S>(
     command: &str,
     out: &Path,
     dirs: &[PathBuf],
-    settings_of: impl FnOnce(Vec<String>) -> Result<S>,
+    settings_of: impl FnOnce(Vec<String>) -> Result<(S, String)>,
     write: impl FnOnce(&Path, &[Row], &[String], &S, &str) -> Result<()>,
 ) -> Result<()> {
     let merged = merge(command, dirs)?;
@@ -127,7 +138,16 @@ pub fn write_merged<S>(
         .chain(merged.run.iter().cloned())
         .chain(["--out".to_string(), out.display().to_string()])
         .collect();
-    let settings = settings_of(line).context("the shards' flags")?;
+    let (settings, here) = settings_of(line).context("the shards' flags")?;
+    if here != merged.settings {
+        bail!(
+            "the shards ran other settings than this vkdr ({}) resolves their flags to: {}; \
+             merge with the vkdr that ran them ({})",
+            build_version(),
+            first_difference(&merged.settings, &here),
+            merged.version
+        );
+    }
     write(
         out,
         &merged.rows,
@@ -179,8 +199,11 @@ pub struct ShardFile {
     /// The vkdr version that ran it, with its build's commit ([`build_version`]).
     pub version: String,
     /// The run's flags after `eval`, without --shard, --out and --spaces: every shard of a
-    /// run has the same, and the merge rebuilds the settings from them.
+    /// run has the same.
     pub run: Vec<String>,
+    /// The settings they resolved to ([`resolved`]): the merge refuses a build that
+    /// resolves the flags otherwise.
+    pub settings: String,
     pub shard: usize,
     pub shards: usize,
     /// The device, as the tables name it.
@@ -215,22 +238,34 @@ impl ShardFile {
                 dir.display()
             )
         })?;
-        let file: ShardFile = serde_json::from_str(&text)
-            .with_context(|| format!("{}: not a shard file of this vkdr", path.display()))?;
-        if file.format != FORMAT {
+        // The format first: a shard of an older vkdr lacks fields this one reads.
+        #[derive(Deserialize)]
+        struct Head {
+            format: u32,
+            version: Option<String>,
+        }
+        let head: Head = serde_json::from_str(&text)
+            .with_context(|| format!("{}: not a shard file of vkdr", path.display()))?;
+        if head.format != FORMAT {
             bail!(
-                "{}: shard format {}, this vkdr reads {FORMAT}",
+                "{}: shard format {} (written by vkdr {}), this vkdr ({}) reads format {FORMAT}: \
+                 run the shards again with this vkdr",
                 path.display(),
-                file.format
+                head.format,
+                head.version.as_deref().unwrap_or("of unknown version"),
+                build_version()
             );
         }
-        Ok(file)
+        serde_json::from_str(&text)
+            .with_context(|| format!("{}: not a shard file of this vkdr", path.display()))
     }
 
-    /// A new, empty file for `shard` of the `command` run with flags `run`.
+    /// A new, empty file for `shard` of the `command` run with flags `run`, resolved to
+    /// `settings` ([`resolved`]).
     pub fn new(
         command: &str,
         run: Vec<String>,
+        settings: String,
         shard: Shard,
         device: String,
         units: Vec<Unit>,
@@ -240,6 +275,7 @@ impl ShardFile {
             command: command.to_string(),
             version: build_version(),
             run,
+            settings,
             shard: shard.index,
             shards: shard.count,
             device,
@@ -281,6 +317,9 @@ pub fn run_flags(command: &str) -> Vec<String> {
 /// version, or a unit that two shards hold.
 pub struct Merged {
     pub run: Vec<String>,
+    /// The settings the shards resolved the flags to, and the version that ran them.
+    pub settings: String,
+    pub version: String,
     pub device: String,
     pub rows: Vec<Row>,
     pub failures: Vec<String>,
@@ -313,7 +352,7 @@ pub fn merge(command: &str, dirs: &[PathBuf]) -> Result<Merged> {
                 first.version
             );
         }
-        if file.run != first.run {
+        if file.run != first.run || file.settings != first.settings {
             bail!(
                 "{} is a shard of another run: its flags are `{}`, {}'s `{}`",
                 dir.display(),
@@ -379,10 +418,21 @@ pub fn merge(command: &str, dirs: &[PathBuf]) -> Result<Merged> {
     devices.dedup();
     Ok(Merged {
         run: first.run.clone(),
+        settings: first.settings.clone(),
+        version: first.version.clone(),
         device: devices.join("; "),
         rows: placed.into_iter().map(|(p, _)| p.row.clone()).collect(),
         failures: files.iter().flat_map(|f| f.failures.clone()).collect(),
     })
+}
+
+/// The first line where two resolved settings differ, as `the shards' ..., here ...`.
+fn first_difference(shards: &str, here: &str) -> String {
+    let mut lines = shards.lines().zip(here.lines());
+    match lines.find(|(a, b)| a != b) {
+        Some((a, b)) => format!("the shards' `{}`, here `{}`", a.trim(), b.trim()),
+        None => "one lists more settings than the other".to_string(),
+    }
 }
 
 #[cfg(test)]

@@ -115,6 +115,45 @@ fn merged_shards_are_the_unsharded_tables() {
                 said.contains("is a shard of another run") && said.contains("--trials 3"),
                 "{said}"
             );
+            // Shards whose settings this build would not resolve their flags to (as after
+            // a default changed between the shards and the merge) are refused, not
+            // described with this build's settings.
+            let edited: Vec<PathBuf> = (0..3).map(|k| dir.join(format!("edited_{k}"))).collect();
+            for (from, to) in shards.iter().zip(&edited) {
+                std::fs::create_dir_all(to).unwrap();
+                let text = std::fs::read_to_string(from.join("shard.json")).unwrap();
+                assert_eq!(text.matches("plateau: 0.0001,").count(), 2, "{text}");
+                let text = text.replace("plateau: 0.0001,", "plateau: 0.001,");
+                std::fs::write(to.join("shard.json"), text).unwrap();
+            }
+            let merged_edited = dir.join("m_edited");
+            let mut args = vec!["eval", "--merge", s(&merged_edited)];
+            args.extend(edited.iter().map(|p| s(p)));
+            let said = fails(&args);
+            assert!(
+                said.contains("the shards ran other settings")
+                    && said.contains("`plateau: 0.001,`, here `plateau: 0.0001,`"),
+                "{said}"
+            );
+            assert!(!merged_edited.join("table.md").exists());
+            // A shard of an older format is refused with the reason.
+            let old = dir.join("old_format");
+            std::fs::create_dir_all(&old).unwrap();
+            let text = std::fs::read_to_string(shards[0].join("shard.json")).unwrap();
+            let text = text.replacen("\"format\":4", "\"format\":3", 1);
+            std::fs::write(old.join("shard.json"), text).unwrap();
+            let said = fails(&[
+                "eval",
+                "--merge",
+                s(&dir.join("m_old")),
+                s(&old),
+                s(&shards[1]),
+                s(&shards[2]),
+            ]);
+            assert!(
+                said.contains("shard format 3") && said.contains("run the shards again"),
+                "{said}"
+            );
             let said = fails(&["eval", "--merge", s(&dir.join("m_none")), s(&data)]);
             assert!(said.contains("not a shard's output"), "{said}");
         }
