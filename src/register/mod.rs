@@ -252,6 +252,25 @@ impl RegisterParams {
 /// by its rotation noise, the same 15 degrees by default).
 pub const START_TURN: f64 = 15f64.to_radians();
 
+/// Starts of a registration with the pose free unless told otherwise: the start and it
+/// turned by +-1 and +-2 [`START_TURN`]s (against a rotation that stops in a local
+/// minimum, as a mug's handle; docs/evaluation.md has the cost). `vkdr register`, `vkdr
+/// eval`, `eval-frames`, `bench-register` and the Python module take it from here.
+pub const DEFAULT_STARTS: usize = 5;
+/// The most starts one registration takes (each start's turn is scored on the first
+/// start's fit; past +-4 turns of 15 degrees a start is no longer near the first).
+pub const MAX_STARTS: usize = 8;
+
+/// An error unless `count` is 1 to [`MAX_STARTS`].
+pub fn check_starts(count: usize) -> Result<()> {
+    if (1..=MAX_STARTS).contains(&count) {
+        return Ok(());
+    }
+    Err(Error::InvalidInput(format!(
+        "starts must be 1 to {MAX_STARTS}, not {count}"
+    )))
+}
+
 impl Default for RegisterParams {
     fn default() -> Self {
         Self {
@@ -640,7 +659,7 @@ impl Registrar {
     /// bench-register` times it). Without an alignment stage every start runs in full
     /// (one [`Registrar::register_batch`]) and the least final loss is kept. The result's
     /// `milliseconds` is the wall time and its `iterations` count every evaluation. An
-    /// error without starts.
+    /// error unless 1 to [`MAX_STARTS`] starts are given ([`check_starts`]).
     pub fn register_from_starts(
         &self,
         ctx: &Context,
@@ -649,11 +668,7 @@ impl Registrar {
         params: &RegisterParams,
         on_chunk: impl OnChunk,
     ) -> Result<Registration> {
-        if starts.is_empty() {
-            return Err(Error::InvalidInput(
-                "a registration from starts needs at least one start".into(),
-            ));
-        }
+        check_starts(starts.len())?;
         let jobs: Vec<Job> = starts
             .iter()
             .map(|&pose| Job {

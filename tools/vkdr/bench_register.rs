@@ -60,7 +60,7 @@ pub struct Args {
     /// Starts of the registration from starts (the first registered, the others' turns
     /// tried on its fit: the default of `vkdr eval` and `vkdr register` with pose noise),
     /// timed against one start.
-    #[arg(long, default_value_t = eval::EvalSettings::default().starts)]
+    #[arg(long, default_value_t = vkdr::register::DEFAULT_STARTS)]
     pub starts: usize,
     /// Render an object over twice this many pixels across at a coarser step (as `vkdr
     /// eval` and `register` do, at 64); 0, the default: the image's own pixels (the device
@@ -223,9 +223,7 @@ pub fn run(args: &Args) -> Result<()> {
     params.check_every = args.iterations; // no plateau stop: every run does all iterations
     params.detail = args.detail;
     params.code_prior = vkdr::register::observation_prior((width * height) as usize);
-    if !(1..=8).contains(&args.starts) {
-        bail!("--starts must be 1 to 8, not {}", args.starts);
-    }
+    vkdr::register::check_starts(args.starts).context("--starts")?;
 
     // One registration, end to end (scene set-up included), after a warm-up.
     registrar.register_batch(ctx, &jobs[..1], &params, |_, _| {})?;

@@ -307,7 +307,7 @@ impl Default for EvalSettings {
             views: 1,
             own_elevations: false,
             fix_z: false,
-            starts: 5,
+            starts: vkdr::register::DEFAULT_STARTS,
             occluder: false,
             table: false,
             depth_holes: 0.0,

@@ -99,7 +99,7 @@ pub struct Args {
     /// by +-15, +-30, ... degrees (the rotation noise); the noisy start is registered and
     /// the others' turns are tried on its fit, the joint fit running again from a turn
     /// that scores 5% lower (1 to 8; the time columns count it all).
-    #[arg(long, default_value_t = vkdr_app::eval::EvalSettings::default().starts)]
+    #[arg(long, default_value_t = vkdr::register::DEFAULT_STARTS)]
     starts: usize,
     /// Weight of the Gaussian prior on the code in training standard deviations
     /// (RegisterParams::code_prior), in both conditions: auto (the weight the image's
@@ -260,9 +260,7 @@ fn settings(args: &Args) -> Result<EvalSettings> {
     }
     settings.own_elevations = args.own_elevations;
     settings.fix_z = args.fix_z;
-    if !(1..=8).contains(&args.starts) {
-        bail!("--starts must be 1 to 8, not {}", args.starts);
-    }
+    vkdr::register::check_starts(args.starts).context("--starts")?;
     settings.starts = args.starts;
     let pixels = (settings.camera.width * settings.camera.height) as usize;
     let prior = crate::args::code_prior(&args.code_prior, pixels)?;

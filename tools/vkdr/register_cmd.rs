@@ -94,7 +94,7 @@ pub struct Args {
     /// others' turns are tried on its fit, the joint fit running again from a turn that
     /// scores 5% lower (1 to 8; against a rotation that stops in a local minimum, as a
     /// mug's handle; the cost: docs/evaluation.md).
-    #[arg(long, default_value_t = vkdr_app::eval::EvalSettings::default().starts)]
+    #[arg(long, default_value_t = vkdr::register::DEFAULT_STARTS)]
     starts: usize,
     /// The object's up axis for --starts and --gravity, in its own frame: x,y,z. Default:
     /// the shape space's (its category's info.json up_axis), or y for a space that does
@@ -402,11 +402,8 @@ fn rendered(
 }
 
 pub fn run(args: &Args) -> Result<()> {
-    if !(1..=8).contains(&args.starts) {
-        bail!("--starts must be 1 to 8, not {}", args.starts);
-    }
-    let default_starts = vkdr_app::eval::EvalSettings::default().starts;
-    if args.starts > 1 && args.starts != default_starts && !args.optimize_pose {
+    vkdr::register::check_starts(args.starts).context("--starts")?;
+    if args.starts > 1 && args.starts != vkdr::register::DEFAULT_STARTS && !args.optimize_pose {
         bail!("--starts turns the starting pose: give --optimize-pose too");
     }
     let space = ShapeSpace::load(&args.space)?;

@@ -890,16 +890,15 @@ impl Options {
         }
     }
 
-    /// Starts: as given, else 5 with the pose free and 1 with it known.
+    /// Starts: as given, else [`register::DEFAULT_STARTS`] with the pose free and 1 with
+    /// it known.
     fn start_count(&self) -> vkdr::Result<usize> {
-        let count = self
-            .starts
-            .unwrap_or(if self.optimize_pose { 5 } else { 1 });
-        if !(1..=8).contains(&count) {
-            return Err(vkdr::Error::InvalidInput(format!(
-                "starts: must be 1 to 8, not {count}"
-            )));
-        }
+        let count = self.starts.unwrap_or(if self.optimize_pose {
+            register::DEFAULT_STARTS
+        } else {
+            1
+        });
+        register::check_starts(count)?;
         Ok(count)
     }
 

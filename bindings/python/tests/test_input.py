@@ -156,7 +156,7 @@ def test_register_refuses_bad_options(device, space, scene):
         device.register(space, mask, K, SIZE, POSE, iteration=5)
     with pytest.raises(ValueError, match="starts: turns the starting pose"):
         device.register(space, mask, K, SIZE, POSE, starts=3)
-    with pytest.raises(ValueError, match="starts: must be 1 to 8"):
+    with pytest.raises(ValueError, match="starts must be 1 to 8"):
         device.register(space, mask, K, SIZE, POSE, optimize_pose=True, starts=9)
     with pytest.raises(ValueError, match="code_prior"):
         device.register(space, mask, K, SIZE, POSE, code_prior=2.0)
