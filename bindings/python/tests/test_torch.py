@@ -70,6 +70,12 @@ def test_example_fits_the_pose():
     assert "within 1 mm and 1 degree" in done.stdout.splitlines()[-1]
 
 
+def test_example_fits_a_mesh_to_four_silhouettes():
+    done = subprocess.run([sys.executable, str(ROOT / "examples" / "python" / "fit_mesh.py")], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "in views the fit never saw" in done.stdout.splitlines()[-1]
+
+
 def test_rasterize_agrees_with_vkdr_and_the_rays(device, scene):
     """The torch fragments' barycentrics and depth are vkdr's (float32 rounding) for one
     pose and a batch, and interpolating the camera-space corners gives each pixel's ray
