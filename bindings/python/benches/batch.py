@@ -3,8 +3,8 @@
     python bindings/python/benches/batch.py [--poses 32] [--vertices 20000] [--runs 7]
 
 At 320 x 240 and 640 x 480, the medians of both (each run's results kept, as a caller
-keeps them), their ratio, and the check that the batch's ids, barycentrics and depth are
-the loop's, byte for byte.
+keeps them), their ratio, the batch of ids alone (`Device.visibility`), and the check that
+the batch's ids, barycentrics and depth are the loop's, byte for byte.
 """
 
 import argparse
@@ -42,9 +42,19 @@ def main():
                 del kept
         singles, together = loop(), batch()
         same = all(np.array_equal(np.stack([s[k] for s in singles]), together[k]) for k in range(3))
+        # The ids alone (Device.visibility, what vkdr.torch.rasterize reads): the batch of
+        # them against the full batch.
+        ids = lambda: device.visibility(vertices, faces, K, size, poses)  # noqa: E731
+        for _ in range(args.runs):
+            start = time.perf_counter()
+            kept = ids()
+            times.setdefault("ids", []).append(1e3 * (time.perf_counter() - start))
+            del kept
+        same = same and np.array_equal(ids(), together[0])
         median = {name: statistics.median(t) for name, t in times.items()}
         print(f"{width} x {height}: loop {median['loop']:.1f} ms, batch {median['batch']:.1f} ms, "
-              f"loop / batch {median['loop'] / median['batch']:.2f}, the same bytes: {same}")
+              f"loop / batch {median['loop'] / median['batch']:.2f}; the batch's ids alone "
+              f"{median['ids']:.1f} ms (loop / ids {median['loop'] / median['ids']:.2f}); the same bytes: {same}")
         if not same:
             sys.exit(1)
 

@@ -271,6 +271,42 @@ impl Device {
         Ok((ids.into_any(), bary.into_any(), depth.into_any()))
     }
 
+    /// Which face each pixel centre sees, as `rasterize`'s `ids` (uint32, face + 1, 0 on
+    /// background; (H, W) for one pose, (N, H, W) for several) without the barycentrics
+    /// and depth: a quarter of the memory read back (what `vkdr.torch.rasterize` needs).
+    #[pyo3(signature = (vertices, faces, K, size, poses))]
+    #[allow(non_snake_case)]
+    fn visibility<'py>(
+        &self,
+        py: Python<'py>,
+        vertices: &Bound<'py, PyAny>,
+        faces: &Bound<'py, PyAny>,
+        K: &Bound<'py, PyAny>,
+        size: &Bound<'_, PyAny>,
+        poses: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let mesh = crate::mesh(vertices, faces)?;
+        let camera = crate::camera(K, crate::size(size, "size")?)?;
+        let (poses, batched) = crate::poses(poses, "poses")?;
+        let views: Vec<View> = poses.iter().map(|&pose| View { camera, pose }).collect();
+        let g = py.detach(|| {
+            self.engine.run(|ctx, parts| {
+                parts
+                    .registrar(ctx)?
+                    .renderer()
+                    .rasterizer()
+                    .render(ctx, &mesh, &views, Outputs::Ids)
+            })
+        })?;
+        let (h, w) = (camera.height as usize, camera.width as usize);
+        let shape = if batched {
+            vec![views.len(), h, w]
+        } else {
+            vec![h, w]
+        };
+        Ok(array(py, into_vec(g.ids), &shape)?.into_any())
+    }
+
     /// The loss of the mesh's rendering at `pose` (6,) against the observed `mask` (H, W;
     /// nonzero = object, `vkdr.UNKNOWN` = unknown), and its exact gradients. Returns
     /// `(loss, grad_vertices, grad_pose)`: dL/dvertices (V x 3, float32, object frame) and

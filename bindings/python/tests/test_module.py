@@ -34,6 +34,9 @@ def test_rasterize_agrees_with_the_command_line(device, mesh, cli, tmp_path):
     assert all_ids.shape == (2, SIZE[1], SIZE[0]) and all_bary.shape == (2, SIZE[1], SIZE[0], 2)
     assert np.array_equal(all_ids[0], ids) and np.array_equal(all_depth[0], depth)
     assert np.array_equal(all_ids[1], device.rasterize(vertices, faces, K, SIZE, moved)[0])
+    # The ids alone: the same bytes, one pose or several.
+    assert device.visibility(vertices, faces, K, SIZE, POSE).tobytes() == ids.tobytes()
+    assert device.visibility(vertices, faces, K, SIZE, np.stack([POSE, moved])).tobytes() == all_ids.tobytes()
 
 
 def left_jacobian(r):

@@ -49,6 +49,16 @@ class Device:
         """(ids, bary, depth) at each pixel centre: triangle id + 1 (0 on background), the
         barycentric weights of corners 0 and 1, the camera-space depth (0 on background);
         (H, W, ...) for one pose (6,), (N, H, W, ...) for several (N, 6)."""
+    def visibility(
+        self,
+        vertices: ArrayLike,
+        faces: ArrayLike,
+        K: ArrayLike,
+        size: ArrayLike,
+        poses: ArrayLike,
+    ) -> npt.NDArray[np.uint32]:
+        """`rasterize`'s ids alone (triangle id + 1, 0 on background), (H, W) or (N, H, W):
+        a quarter of the memory read back."""
     def loss_and_grad(
         self,
         vertices: ArrayLike,

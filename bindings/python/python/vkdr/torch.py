@@ -128,11 +128,11 @@ def rasterize(vertices, faces, K, size, pose, device=None):
     """The mesh (`vertices` V x 3, `faces` F x 3) through the camera `K` at `size` =
     (width, height) from `pose` (6,) or poses (N, 6): `Fragments` whose `bary` and `depth`
     are differentiable in `vertices` and `pose` (see `barycentrics`); the visibility is
-    vkdr's (`vkdr.Device.rasterize`, on `device` or the default one)."""
+    vkdr's (`vkdr.Device.visibility`, on `device` or the default one)."""
     vertices = torch.as_tensor(vertices)
     pose = torch.as_tensor(pose, device=vertices.device)
     device = device if device is not None else default_device()
-    ids, _, _ = device.rasterize(
+    ids = device.visibility(
         vertices.detach().cpu().to(torch.float32).numpy(),
         _numpy(faces),
         _numpy(K),
