@@ -142,18 +142,7 @@ pub fn sphere(vertices: usize) -> Mesh {
     Mesh::uv_sphere(0.1, rings, segments)
 }
 
-/// The median (NaN for no values).
-pub fn median(mut values: Vec<f64>) -> f64 {
-    values.sort_by(|a, b| a.total_cmp(b));
-    let n = values.len();
-    if n == 0 {
-        f64::NAN
-    } else if n % 2 == 1 {
-        values[n / 2]
-    } else {
-        (values[n / 2 - 1] + values[n / 2]) / 2.0
-    }
-}
+use vkdr_app::metrics::median;
 
 fn measure(ctx: &Context, settings: &Settings) -> Result<Vec<Row>> {
     let (width, height) = settings.size;

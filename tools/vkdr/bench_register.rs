@@ -23,7 +23,7 @@ use vkdr_app::dataset::{instance, Rng};
 use vkdr_app::eval::{self, surface_error, EvalSettings};
 use vkdr_app::plot::{Plot, PALETTE};
 
-use crate::bench::median;
+use vkdr_app::metrics::median;
 
 #[derive(clap::Args)]
 pub struct Args {

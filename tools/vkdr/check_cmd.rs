@@ -69,36 +69,3 @@ pub fn run(args: &Args) -> Result<()> {
     }
     Ok(())
 }
-
-/// `check-dataset`'s checks of one category before a long run (`shape-space`, `eval`):
-/// stops on what would make the results meaningless unless `skip`, and says how many
-/// warnings there are. `own_canonical`: another canonical is named, so a missing
-/// canonical.obj is fine.
-pub fn check_first(dir: &Path, skip: bool, own_canonical: bool) -> Result<Category> {
-    let category = check::check_category(dir)?;
-    let fatal: Vec<String> = category
-        .fatal()
-        .filter(|f| !(own_canonical && f.message == "no canonical.obj"))
-        .map(|f| format!("  {}: {}", f.subject, f.message))
-        .collect();
-    if !fatal.is_empty() && !skip {
-        bail!(
-            "{} is not usable as it is (vkdr check-dataset shows all; --skip-checks runs anyway):\n{}",
-            dir.display(),
-            fatal.join("\n")
-        );
-    }
-    let warnings = category
-        .findings
-        .iter()
-        .filter(|f| f.severity == check::Severity::Warning)
-        .count();
-    if warnings > 0 {
-        eprintln!(
-            "{}: {warnings} warnings (vkdr check-dataset {} lists them)",
-            category.name,
-            dir.display()
-        );
-    }
-    Ok(category)
-}

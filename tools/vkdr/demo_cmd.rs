@@ -12,8 +12,8 @@ use vkdr::gpu::Context;
 use vkdr::raster::{Rasterizer, View};
 use vkdr::{Mesh, Pose};
 
-use crate::render_cmd::write_views;
-use crate::{eval_cmd, out, shape_cmd};
+use crate::pictures::write_views;
+use crate::{out, registration, spaces};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -44,7 +44,7 @@ pub fn run(args: &Args) -> Result<()> {
     // 2. The bottle's shape space from its training instances.
     let category = dataset.join("bottle");
     let space_path = out.join("bottle_space.npz");
-    shape_cmd::build(&category, None, 5, &CpdParams::default(), &space_path)?;
+    spaces::build(&category, None, 5, &CpdParams::default(), &space_path)?;
     let space = vkdr::shape::ShapeSpace::load(&space_path)?;
     println!(
         "2. built the bottle shape space ({} dimensions) -> {}",
@@ -54,7 +54,7 @@ pub fn run(args: &Args) -> Result<()> {
 
     // 3. Register a held-out bottle from rendered masks, with the pose known and with
     //    pose noise, over a few seeded trials: its Table-1 row.
-    let test_path = shape_cmd::obj_files(&category.join("test"))?
+    let test_path = spaces::obj_files(&category.join("test"))?
         .into_iter()
         .next()
         .context("no test bottle")?;
@@ -128,7 +128,7 @@ pub fn run(args: &Args) -> Result<()> {
             pose: start,
         },
     );
-    let result = eval_cmd::register(
+    let result = registration::register(
         &ctx,
         job,
         &[job.view.pose],

@@ -18,9 +18,8 @@ use vkdr_app::bop::{self, Frame, FrameObject, ObjectCategory};
 use vkdr_app::eval::{self, EvalSettings, GravitySource, Observation, TrialScene, TrialSource};
 
 use crate::args::{DepthLossArgs, RenamedArgs};
-use crate::eval_cmd::dir_name;
-use crate::shape_cmd::obj_files;
 use crate::shard;
+use crate::spaces::{dir_name, obj_files};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -223,7 +222,7 @@ pub fn run(args: &Args) -> Result<()> {
     // Each category's up axis and the expected cost of its units.
     let mut checked = Vec::new();
     for dir in &categories {
-        let category = crate::check_cmd::check_first(dir, false, false)?;
+        let category = crate::spaces::check_first(dir, false, false)?;
         checked.push((category.info.up, shard::unit_cost(&category)?));
     }
     for (t, target) in targets.iter().enumerate() {
@@ -262,7 +261,7 @@ pub fn run(args: &Args) -> Result<()> {
             Entry::Occupied(built) => built.into_mut(),
             Entry::Vacant(slot) => {
                 let dir = &categories[c];
-                slot.insert(crate::eval_cmd::shared_space(
+                slot.insert(crate::spaces::shared_space(
                     &ctx,
                     dir,
                     &dir_name(dir),

@@ -94,7 +94,7 @@ pub fn write(
     )?;
     write_atomically(
         &out.join("trials.csv"),
-        crate::eval_cmd::trials_csv(rows).as_bytes(),
+        crate::eval_report::trials_csv(rows).as_bytes(),
     )?;
     write_png(
         &out.join("speed_vs_error.png"),

@@ -9,6 +9,7 @@ mod cpd_cmd;
 mod dataset_cmd;
 mod demo_cmd;
 mod eval_cmd;
+mod eval_report;
 mod frames_cmd;
 mod frames_report;
 mod grad;
@@ -16,9 +17,11 @@ mod info_cmd;
 mod out;
 mod pictures;
 mod register_cmd;
+mod registration;
 mod render_cmd;
 mod shape_cmd;
 mod shard;
+mod spaces;
 
 use std::path::PathBuf;
 

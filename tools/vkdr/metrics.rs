@@ -329,6 +329,19 @@ pub(crate) fn nearest(p: DVec3, points: &[DVec3]) -> f64 {
         .sqrt()
 }
 
+/// The median (NaN for no values).
+pub fn median(mut values: Vec<f64>) -> f64 {
+    values.sort_by(|a, b| a.total_cmp(b));
+    let n = values.len();
+    if n == 0 {
+        f64::NAN
+    } else if n % 2 == 1 {
+        values[n / 2]
+    } else {
+        (values[n / 2 - 1] + values[n / 2]) / 2.0
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

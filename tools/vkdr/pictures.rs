@@ -1,7 +1,16 @@
-//! Pictures of G-buffers for people: masks, false-colour ids, barycentrics, depth.
+//! Pictures of G-buffers for people: masks, false-colour ids, barycentrics, depth; and a
+//! mesh's views rendered and written as those pictures.
 
+use std::path::Path;
+
+use anyhow::{Context as _, Result};
 use image::{DynamicImage, GrayImage, Rgb, RgbImage, RgbaImage};
-use ndarray::ArrayView2;
+use ndarray::{s, ArrayView2};
+
+use vkdr::gpu::Context;
+use vkdr::io::{write_npy, write_png};
+use vkdr::raster::{Outputs, Rasterizer, View};
+use vkdr::Mesh;
 
 /// White where a triangle covers the pixel.
 pub fn mask(ids: ArrayView2<u32>) -> DynamicImage {
@@ -69,4 +78,68 @@ pub fn colour(pixels: ndarray::ArrayView3<u8>) -> DynamicImage {
     let (h, w, _) = pixels.dim();
     let data: Vec<u8> = pixels.iter().copied().collect();
     DynamicImage::ImageRgba8(RgbaImage::from_raw(w as u32, h as u32, data).expect("RGBA8 image"))
+}
+
+/// Renders the views and writes pictures (and the raw G-buffer) into `out`; with several
+/// views, file names get a `view<k>_` prefix. Returns the written paths.
+pub fn write_views(
+    ctx: &Context,
+    rasterizer: &Rasterizer,
+    mesh: &Mesh,
+    views: &[View],
+    out: &Path,
+    raw: bool,
+) -> Result<Vec<String>> {
+    let gbuffer = rasterizer.render(ctx, mesh, views, Outputs::IdsBaryDepth)?;
+    let colour = rasterizer.render_shaded(ctx, mesh, views)?;
+    let depth = gbuffer
+        .depth
+        .as_ref()
+        .context("G-buffer rendered without depth")?;
+    let bary_all = gbuffer
+        .bary
+        .as_ref()
+        .context("G-buffer rendered without barycentrics")?;
+    let mut written = Vec::new();
+    for k in 0..views.len() {
+        let prefix = if views.len() > 1 {
+            format!("view{k}_")
+        } else {
+            String::new()
+        };
+        let ids = gbuffer.ids.slice(s![k, .., ..]);
+        let bary = bary_all.slice(s![k, .., .., ..]);
+        let z = depth.slice(s![k, .., ..]);
+        let mut save = |name: &str, picture: image::DynamicImage| -> Result<()> {
+            let path = out.join(format!("{prefix}{name}"));
+            write_png(&path, &picture)?;
+            written.push(path.display().to_string());
+            Ok(())
+        };
+        save("colour.png", self::colour(colour.slice(s![k, .., .., ..])))?;
+        save("mask.png", mask(ids))?;
+        save("ids.png", self::ids(ids))?;
+        save("bary.png", barycentrics(ids, bary))?;
+        save("depth.png", self::depth(z))?;
+        if raw {
+            for (name, result) in [
+                (
+                    "ids.npy",
+                    write_npy(&out.join(format!("{prefix}ids.npy")), &ids),
+                ),
+                (
+                    "bary.npy",
+                    write_npy(&out.join(format!("{prefix}bary.npy")), &bary),
+                ),
+                (
+                    "depth.npy",
+                    write_npy(&out.join(format!("{prefix}depth.npy")), &z),
+                ),
+            ] {
+                result?;
+                written.push(out.join(format!("{prefix}{name}")).display().to_string());
+            }
+        }
+    }
+    Ok(written)
 }

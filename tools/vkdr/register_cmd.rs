@@ -17,7 +17,6 @@ use vkdr_app::eval;
 
 use crate::args::{parse_view, DepthLossArgs, ShadingArgs, ViewArgs};
 use crate::choices::{LossChoice, OptimizerChoice};
-use crate::eval_cmd;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -482,7 +481,7 @@ pub fn run(args: &Args) -> Result<()> {
     };
     let count = if args.optimize_pose { args.starts } else { 1 };
     let starts = turned_starts(view.pose, up, count, register::START_TURN);
-    let result = eval_cmd::register(&ctx, job, &starts, &params, &args.out)?;
+    let result = crate::registration::register(&ctx, job, &starts, &params, &args.out)?;
     // With several starts, `iterations` counts the turns' evaluations too; the kept run's
     // are its losses.
     let kept = result.losses.len().max(1);

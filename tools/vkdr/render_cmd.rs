@@ -1,17 +1,15 @@
 //! `vkdr render`: a mesh's G-buffer (triangle ids, barycentrics, depth) and pictures of it.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::{Context as _, Result};
-use ndarray::s;
 
 use vkdr::gpu::Context;
-use vkdr::io::{write_npy, write_png};
-use vkdr::raster::{Outputs, Rasterizer, View};
+use vkdr::raster::{Rasterizer, View};
 use vkdr::Mesh;
 
 use crate::args::ViewArgs;
-use crate::pictures;
+use crate::pictures::write_views;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -52,71 +50,4 @@ pub fn run(args: &Args) -> Result<()> {
         written.join(", ")
     );
     Ok(())
-}
-
-/// Renders the views and writes pictures (and the raw G-buffer) into `out`; with several
-/// views, file names get a `view<k>_` prefix. Returns the written paths.
-pub fn write_views(
-    ctx: &Context,
-    rasterizer: &Rasterizer,
-    mesh: &Mesh,
-    views: &[View],
-    out: &Path,
-    raw: bool,
-) -> Result<Vec<String>> {
-    let gbuffer = rasterizer.render(ctx, mesh, views, Outputs::IdsBaryDepth)?;
-    let colour = rasterizer.render_shaded(ctx, mesh, views)?;
-    let depth = gbuffer
-        .depth
-        .as_ref()
-        .context("G-buffer rendered without depth")?;
-    let bary_all = gbuffer
-        .bary
-        .as_ref()
-        .context("G-buffer rendered without barycentrics")?;
-    let mut written = Vec::new();
-    for k in 0..views.len() {
-        let prefix = if views.len() > 1 {
-            format!("view{k}_")
-        } else {
-            String::new()
-        };
-        let ids = gbuffer.ids.slice(s![k, .., ..]);
-        let bary = bary_all.slice(s![k, .., .., ..]);
-        let z = depth.slice(s![k, .., ..]);
-        let mut save = |name: &str, picture: image::DynamicImage| -> Result<()> {
-            let path = out.join(format!("{prefix}{name}"));
-            write_png(&path, &picture)?;
-            written.push(path.display().to_string());
-            Ok(())
-        };
-        save(
-            "colour.png",
-            pictures::colour(colour.slice(s![k, .., .., ..])),
-        )?;
-        save("mask.png", pictures::mask(ids))?;
-        save("ids.png", pictures::ids(ids))?;
-        save("bary.png", pictures::barycentrics(ids, bary))?;
-        save("depth.png", pictures::depth(z))?;
-        if raw {
-            for (name, result) in [
-                (
-                    "ids.npy",
-                    write_npy(&out.join(format!("{prefix}ids.npy")), &ids),
-                ),
-                (
-                    "bary.npy",
-                    write_npy(&out.join(format!("{prefix}bary.npy")), &bary),
-                ),
-                (
-                    "depth.npy",
-                    write_npy(&out.join(format!("{prefix}depth.npy")), &z),
-                ),
-            ] {
-                result?;
-                written.push(out.join(format!("{prefix}{name}")).display().to_string());
-            }
-        }
-    }
-    Ok(written)
 }

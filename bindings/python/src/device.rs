@@ -291,11 +291,12 @@ impl Device {
         let views: Vec<View> = poses.iter().map(|&pose| View { camera, pose }).collect();
         let g = py.detach(|| {
             self.engine.run(|ctx, parts| {
-                parts
-                    .registrar(ctx)?
-                    .renderer()
-                    .rasterizer()
-                    .render(ctx, &mesh, &views, Outputs::Ids)
+                parts.registrar(ctx)?.renderer().rasterizer().render(
+                    ctx,
+                    &mesh,
+                    &views,
+                    Outputs::Ids,
+                )
             })
         })?;
         let (h, w) = (camera.height as usize, camera.width as usize);
