@@ -42,7 +42,7 @@ fn main() -> vkdr::Result<()> {
          (the mean shape's {:.2} mm)",
         found.losses[0],
         found.losses[found.losses.len() - 1],
-        found.iterations,
+        found.iterations(),
         found.code,
         mean_mm(&found.vertices, &unseen),
         mean_mm(&mean_shape, &unseen)

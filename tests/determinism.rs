@@ -125,7 +125,7 @@ fn same_registration(a: &Registration, b: &Registration, name: &str) {
         f64_bits(&[r.pose.translation.to_array(), r.pose.rotation.to_array()].concat())
     };
     assert_eq!(pose(a), pose(b), "{name}: pose");
-    assert_eq!(a.iterations, b.iterations, "{name}: iterations");
+    assert_eq!(a.evaluations, b.evaluations, "{name}: iterations");
     for (ca, cb) in a.codes.iter().zip(&b.codes) {
         assert_eq!(f64_bits(ca), f64_bits(cb), "{name}: codes per iteration");
     }

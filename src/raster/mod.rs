@@ -655,11 +655,9 @@ impl Rasterizer {
 
     /// One-shot convenience: uploads `mesh`, draws every view and reads the G-buffer back:
     /// [`RENDER_CHUNK`] views per submission into one G-buffer reused, each chunk read
-    /// straight into the returned arrays. (A G-buffer of every view at once, read back and
-    /// copied, made 32 views of 640 x 480 cost 1.8 times a loop of single views on
-    /// lavapipe: 157 MB of fresh memory touched three times. Now the batch takes 1/1.5 of
-    /// the loop's time at 320 x 240 and 1/1.15 at 640 x 480, `bindings/python`'s
-    /// `benches/batch.py`.)
+    /// straight into the returned arrays, so that the memory touched is the caller's
+    /// arrays and one chunk's G-buffer however many views there are (`bindings/python`'s
+    /// `benches/batch.py` measures a batch against a loop).
     pub fn render(
         &self,
         ctx: &Context,

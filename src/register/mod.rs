@@ -331,17 +331,20 @@ pub struct Registration {
     pub losses: Vec<f64>,
     /// The stages that `losses`, `codes` and `scales` hold, in order: each one's name
     /// ([`STAGE_FIT`], [`STAGE_ALIGN`], [`STAGE_REACH`], [`STAGE_TURNED`]) and how many
-    /// entries it holds. Their counts add up to `losses.len()`; `iterations` counts every
-    /// evaluation besides (the turns' checks, a joint fit that a turned one beat).
+    /// entries it holds. Their counts add up to `losses.len()`
+    /// ([`Registration::iterations`]); `evaluations` counts every evaluation besides (the
+    /// turns' checks, a joint fit that a turned one beat).
     pub stages: Vec<(&'static str, usize)>,
     /// Latent code after each iteration (shape space units).
     pub codes: Vec<Vec<f64>>,
     /// The uniform scale after each iteration (all 1 unless
     /// [`RegisterParams::optimize_scale`]).
     pub scales: Vec<f64>,
-    /// Iterations run, the alignment's included (fewer than asked when the loss
-    /// reached its plateau).
-    pub iterations: usize,
+    /// Every evaluation of an objective the registration made: its stages' iterations
+    /// (fewer than asked where the loss reached its plateau), and with several starts
+    /// the turns' checks and any joint fit that a turned one replaced. The time,
+    /// `milliseconds`, is theirs.
+    pub evaluations: usize,
     /// Wall time from the start of the call until this registration finished,
     /// milliseconds.
     pub milliseconds: f64,
@@ -355,6 +358,13 @@ pub struct Registration {
     /// which `losses` may follow with a rejected trial; for SGD and Adam the last loss
     /// evaluated, before the last step).
     pub loss: f64,
+}
+
+impl Registration {
+    /// The iterations whose losses are kept: the stages' counts, `losses.len()`.
+    pub fn iterations(&self) -> usize {
+        self.stages.iter().map(|(_, count)| count).sum()
+    }
 }
 
 /// With depth and an occlusion tolerance: the job's mask (and shading) with the pixels
@@ -682,14 +692,14 @@ impl Registrar {
         }
         let runs = self.register_batch(ctx, &jobs, params, on_chunk)?;
         let milliseconds = runs.iter().map(|r| r.milliseconds).fold(0.0, f64::max);
-        let iterations = runs.iter().map(|r| r.iterations).sum();
+        let evaluations = runs.iter().map(|r| r.evaluations).sum();
         let best = runs
             .into_iter()
             .min_by(|a, b| a.loss.total_cmp(&b.loss))
             .expect("at least one start");
         Ok(Registration {
             milliseconds,
-            iterations,
+            evaluations,
             ..best
         })
     }
@@ -824,7 +834,7 @@ impl Registrar {
                 a.losses.extend(r.losses);
                 a.codes.extend(r.codes);
                 a.scales.extend(r.scales);
-                a.iterations += r.iterations;
+                a.evaluations += r.evaluations;
             }
         }
         let mut refined = self.run(
@@ -849,7 +859,7 @@ impl Registrar {
                 r.losses.splice(0..0, a.losses);
                 r.codes.splice(0..0, a.codes);
                 r.scales.splice(0..0, a.scales);
-                r.iterations += a.iterations;
+                r.evaluations += a.evaluations;
                 r
             })
             .collect())
@@ -920,7 +930,7 @@ impl Registrar {
             .min_by(|a, b| a.1.total_cmp(&b.1))
             .expect("at least one turn");
         let mut fitted = fitted;
-        fitted.result.iterations += scored.iter().map(|s| s.result.iterations).sum::<usize>();
+        fitted.result.evaluations += scored.iter().map(|s| s.result.evaluations).sum::<usize>();
         if best == 0 || best_loss > (1.0 - TURN_GAIN) * loss(&scored[0]) {
             fitted.result.milliseconds = started.elapsed().as_secs_f64() * 1e3;
             return Ok(fitted);
@@ -937,7 +947,7 @@ impl Registrar {
                 &mut |_, _| {},
             )?
             .remove(0);
-        let iterations = fitted.result.iterations + again.result.iterations;
+        let evaluations = fitted.result.evaluations + again.result.evaluations;
         let mut kept = if again.result.loss < fitted.result.loss {
             Staged {
                 result: Registration {
@@ -949,7 +959,7 @@ impl Registrar {
         } else {
             fitted
         };
-        kept.result.iterations = iterations;
+        kept.result.evaluations = evaluations;
         kept.result.milliseconds = started.elapsed().as_secs_f64() * 1e3;
         Ok(kept)
     }
@@ -1545,7 +1555,7 @@ impl<'a> Task<'a> {
                 losses,
                 codes,
                 scales,
-                iterations: self.done,
+                evaluations: self.done,
                 milliseconds: self.milliseconds,
                 on_bound,
                 scale,

@@ -290,7 +290,7 @@ pub fn run(args: &Args) -> Result<()> {
 
     // Error after each iteration of the first run against cumulative time.
     let run = &runs[0];
-    let per_iteration = wall / run.iterations as f64;
+    let per_iteration = wall / run.evaluations as f64;
     let mut curve = vec![(
         0.0,
         surface_error(

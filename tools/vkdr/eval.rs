@@ -467,17 +467,14 @@ pub struct Trial {
     /// With pose noise: the registered surface's size over the test surface's (their
     /// root-mean-square distances from their centroids, [`surface_extent`]): 1 where the
     /// registration found the object's size, whether by the scale or by the shape.
-    #[serde(default)]
     pub size: f64,
     /// The error in the camera's z of the object frame's origin (metres). A diagnostic:
     /// the shape modes move the surface about the origin, so a registered origin off in
     /// depth with the surface in place is a shape shifted in its own frame, not an
-    /// object misplaced. (Absent from shards written before it: 0.)
-    #[serde(default)]
+    /// object misplaced.
     pub z_error_origin: f64,
     /// The same z error for the registration with the pose known (its surface at the true
     /// pose): the part of `z_error` that is the shape's, not the pose's.
-    #[serde(default)]
     pub z_error_known: f64,
     pub scale: f64,
     /// The angle (radians) between the up direction the registration was given and the
@@ -485,22 +482,17 @@ pub struct Trial {
     pub gravity_error: f64,
     /// Gravity from the depth was asked for and no support plane was found: the trial ran
     /// without gravity ([`EvalSettings::gravity_fallback`]).
-    #[serde(default)]
     pub gravity_fallback: bool,
     /// The field's metrics ([`crate::metrics`]): ADD-S with the registered surface
     /// (metres), ...
-    #[serde(default)]
     pub add_s: f64,
     /// ... the distance between the registered and the true surface's centroids in the
     /// camera frame (metres), ...
-    #[serde(default)]
     pub centroid_error: f64,
     /// ... the rotation error as NOCS counts it (radians; up to the turns about the up
     /// axis where the instance is symmetric or its asymmetric part is out of view), ...
-    #[serde(default)]
     pub rotation_error_nocs: f64,
     /// ... and the 3D IoU of the registered and the true oriented bounding boxes.
-    #[serde(default)]
     pub iou: f64,
 }
 
@@ -1040,9 +1032,9 @@ pub fn evaluate_instance(
         let known_pose_loss = result.loss;
         let known_on_bound = result.on_bound;
         known_ch.push(chamfer(&test_vertices, &result.vertices));
-        iterations.push(result.iterations as f64);
+        iterations.push(result.evaluations as f64);
         ms.push(result.milliseconds);
-        ms_per_iteration.push(result.milliseconds / result.iterations as f64);
+        ms_per_iteration.push(result.milliseconds / result.evaluations as f64);
         accumulate_curve(&mut curve_known, space, truth, &result, settings.trials)?;
 
         if settings.from_truth {
@@ -1060,7 +1052,7 @@ pub fn evaluate_instance(
             settings.translation_noise,
             settings.rotation_noise,
         );
-        // Every start in one batch, the least final loss kept.
+        // The noisy start and it turned about the up axis (Registrar::register_from_starts).
         let starts = turned_starts(start, settings.up, settings.starts, settings.rotation_noise);
         let first = job(View {
             camera: view.camera,
@@ -1134,7 +1126,7 @@ pub fn evaluate_instance(
             iou,
         });
         noisy_ch.push(chamfer(&test_vertices, &result.vertices));
-        noise_iterations.push(result.iterations as f64);
+        noise_iterations.push(result.evaluations as f64);
         noise_ms.push(result.milliseconds);
         accumulate_curve(&mut curve_noise, space, truth, &result, settings.trials)?;
     }

@@ -482,17 +482,15 @@ pub fn run(args: &Args) -> Result<()> {
     let count = if args.optimize_pose { args.starts } else { 1 };
     let starts = turned_starts(view.pose, up, count, register::START_TURN);
     let result = crate::registration::register(&ctx, job, &starts, &params, &args.out)?;
-    // With several starts, `iterations` counts the turns' evaluations too; the kept run's
-    // are its losses.
-    let kept = result.losses.len().max(1);
+    let kept = result.iterations().max(1);
     let first = result.losses.first().copied().unwrap_or(f64::NAN);
     println!(
         "{kept} iterations{} in {:.1} ms ({:.2} ms per iteration); loss {first:.5} -> {:.5}{}",
         if starts.len() > 1 {
             format!(
-                " ({} starts: the first fitted, the others' turns tried on its fit; {} iterations in all)",
+                " ({} starts: the first fitted, the others' turns tried on its fit; {} evaluations in all)",
                 starts.len(),
-                result.iterations
+                result.evaluations
             )
         } else {
             String::new()

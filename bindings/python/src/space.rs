@@ -415,9 +415,17 @@ impl Registration {
         self.result.loss
     }
 
+    /// The iterations whose losses are kept: the stages' counts, `len(losses)`.
     #[getter]
     fn iterations(&self) -> usize {
-        self.result.iterations
+        self.result.iterations()
+    }
+
+    /// Every evaluation the registration made, the turns' checks and a joint fit that a
+    /// turned one replaced included (what `milliseconds` paid for).
+    #[getter]
+    fn evaluations(&self) -> usize {
+        self.result.evaluations
     }
 
     #[getter]
@@ -448,7 +456,7 @@ impl Registration {
         state.set_item("stages", r.stages.clone())?;
         state.set_item("codes", r.codes.clone())?;
         state.set_item("scales", r.scales.clone())?;
-        state.set_item("iterations", r.iterations)?;
+        state.set_item("evaluations", r.evaluations)?;
         state.set_item("milliseconds", r.milliseconds)?;
         state.set_item("on_bound", r.on_bound)?;
         state.set_item("scale", r.scale)?;
@@ -480,7 +488,7 @@ impl Registration {
             stages: stages(get("stages")?.extract()?)?,
             codes: get("codes")?.extract()?,
             scales: get("scales")?.extract()?,
-            iterations: get("iterations")?.extract()?,
+            evaluations: get("evaluations")?.extract()?,
             milliseconds: get("milliseconds")?.extract()?,
             on_bound: get("on_bound")?.extract()?,
             scale: get("scale")?.extract()?,
@@ -493,7 +501,7 @@ impl Registration {
         format!(
             "vkdr.Registration(loss {:.5}, {} iterations, {:.1} ms, code in SD {:?}, scale {:.4})",
             self.result.loss,
-            self.result.iterations,
+            self.result.iterations(),
             self.result.milliseconds,
             self.code_sd
                 .iter()

@@ -173,6 +173,10 @@ def test_register_agrees_with_the_command_line(device, space, cli, tmp_path, opt
     # The fit explains the observation better than the mean shape at its start (with the
     # pose free, after the 15 iterations aligning the pose with another loss).
     assert result.loss < result.losses[15 if optimize_pose else 0]
+    # The kept iterations are the stages' and the losses'; with the pose free the five
+    # starts' turn checks are evaluations besides.
+    assert result.iterations == len(result.losses) == sum(count for _, count in result.stages)
+    assert result.evaluations > result.iterations if optimize_pose else result.evaluations == result.iterations
     np.testing.assert_allclose(result.vertices, space.vertices(result.code), rtol=0, atol=1e-12)
     assert result.faces.shape == space.faces.shape
 
@@ -255,4 +259,4 @@ def test_spaces_and_registrations_pickle(device, space, tmp_path):
     for name in ("code", "code_sd", "pose", "vertices", "faces", "losses"):
         assert np.array_equal(getattr(copy, name), getattr(result, name)), name
     assert copy.stages == result.stages == [("fit", len(result.losses))]
-    assert (copy.loss, copy.iterations, copy.scale) == (result.loss, result.iterations, result.scale)
+    assert (copy.loss, copy.iterations, copy.evaluations, copy.scale) == (result.loss, result.iterations, result.evaluations, result.scale)

@@ -171,7 +171,7 @@ fn report(what: &str, case: &Case, result: &Registration) {
         rms(&result.vertices, &case.truth),
         rms_z(&case.mean, &case.truth),
         rms_z(&result.vertices, &case.truth),
-        result.iterations
+        result.evaluations
     );
 }
 

@@ -174,7 +174,12 @@ class Registration:
     @property
     def loss(self) -> float: ...
     @property
-    def iterations(self) -> int: ...
+    def iterations(self) -> int:
+        """The iterations whose losses are kept: the stages' counts, len(losses)."""
+    @property
+    def evaluations(self) -> int:
+        """Every evaluation made, the turns' checks and a replaced joint fit included
+        (what `milliseconds` paid for)."""
     @property
     def milliseconds(self) -> float: ...
     @property
