@@ -240,3 +240,41 @@ def test_antialias_refuses_an_image_of_another_size(device, scene):
     frags = vt.rasterize(v, faces, K, SIZE, torch.tensor(POSE), device=device)
     with pytest.raises(ValueError, match="matching the fragments"):
         vt.antialias(torch.zeros(10, 10, 3), frags, v, faces, K, torch.tensor(POSE))
+
+
+def test_resolution_is_height_width_as_nvdiffrast_takes_it(device, scene):
+    import vkdr.torch as vt
+
+    vertices, faces, _ = scene
+    v, p = torch.tensor(vertices), torch.tensor(POSE)
+    by_size = vt.rasterize(v, faces, K, [256, 200], p, device=device)
+    by_resolution = vt.rasterize(v, faces, K, pose=p, device=device, resolution=(200, 256))
+    assert by_size.triangle.shape == (200, 256) and torch.equal(by_size.triangle, by_resolution.triangle)
+    with pytest.raises(ValueError, match="one of them"):
+        vt.rasterize(v, faces, K, (256, 200), p, device=device, resolution=(200, 256))
+
+
+def test_torch_compile_runs_the_ops(device, scene):
+    """torch.compile (AOTAutograd without code generation, so that CI need not compile
+    C++; inductor ran the same here in 161 s) traces around vkdr's calls (graph breaks)
+    and gives the eager value and gradients."""
+    import vkdr.torch as vt
+
+    vertices, faces, mask = scene
+    target = torch.tensor(mask, dtype=torch.float64)
+
+    def loss(v, p):
+        fragments = vt.rasterize(v, faces, K, SIZE, p, device=device)
+        composed = ((vt.silhouette(fragments, v, faces, K, p) - target) ** 2).mean()
+        return composed + silhouette_loss(v, p, faces, K, SIZE, mask, device=device)
+
+    results = []
+    for run in (loss, torch.compile(loss, backend="aot_eager")):
+        v = torch.tensor(vertices, requires_grad=True)
+        p = torch.tensor(POSE, requires_grad=True)
+        value = run(v, p)
+        value.backward()
+        results.append((value.item(), v.grad, p.grad))
+    (eager, gv, gp), (compiled, cv, cp) = results
+    assert compiled == eager
+    assert torch.allclose(cv, gv, rtol=1e-12, atol=0) and torch.allclose(cp, gp, rtol=1e-12, atol=0)

@@ -124,11 +124,19 @@ def barycentrics(triangle, vertices, faces, K, pose):
     return Fragments(triangle, bary, depth)
 
 
-def rasterize(vertices, faces, K, size, pose, device=None):
+def rasterize(vertices, faces, K, size=None, pose=None, device=None, *, resolution=None):
     """The mesh (`vertices` V x 3, `faces` F x 3) through the camera `K` at `size` =
-    (width, height) from `pose` (6,) or poses (N, 6): `Fragments` whose `bary` and `depth`
-    are differentiable in `vertices` and `pose` (see `barycentrics`); the visibility is
-    vkdr's (`vkdr.Device.visibility`, on `device` or the default one)."""
+    (width, height), or `resolution` = (height, width) as nvdiffrast takes it, from `pose`
+    (6,) or poses (N, 6): `Fragments` whose `bary` and `depth` are differentiable in
+    `vertices` and `pose` (see `barycentrics`), (H, W, ...) or (N, H, W, ...); the
+    visibility is vkdr's (`vkdr.Device.visibility`, on `device` or the default one)."""
+    if (size is None) == (resolution is None):
+        raise ValueError("rasterize: give size=(width, height) or resolution=(height, width), one of them")
+    if resolution is not None:
+        height, width = resolution
+        size = (width, height)
+    if pose is None:
+        raise ValueError("rasterize: pose is required, (6,) or (N, 6)")
     vertices = torch.as_tensor(vertices)
     pose = torch.as_tensor(pose, device=vertices.device)
     device = device if device is not None else default_device()
