@@ -76,6 +76,12 @@ def test_example_fits_a_mesh_to_four_silhouettes():
     assert "in views the fit never saw" in done.stdout.splitlines()[-1]
 
 
+def test_example_fits_texture_and_pose_to_rgbd():
+    done = subprocess.run([sys.executable, str(ROOT / "examples" / "python" / "fit_texture_and_depth.py")], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "(within 1 mm, 1 degree and 0.05)" in done.stdout.splitlines()[-1]
+
+
 def test_rasterize_agrees_with_vkdr_and_the_rays(device, scene):
     """The torch fragments' barycentrics and depth are vkdr's (float32 rounding) for one
     pose and a batch, and interpolating the camera-space corners gives each pixel's ray
