@@ -13,6 +13,11 @@
 //! | registrar | [`register::Registrar`] | the render-and-compare loop: a latent code (and pose) fitted to masks, depth or several views, on the device |
 //! | CPD | [`cpd::register`] | non-rigid Coherent Point Drift, E-step and kernel products on the device |
 //!
+//! These types are re-exported here (`vkdr::Context`, `vkdr::Rasterizer`,
+//! `vkdr::Registrar`, ...). The float64 reference models the tests check the device
+//! against (`raster::reference`, ...), CPD's internals and the compiled shaders are public
+//! for the tests and benchmarks, and hidden from these pages.
+//!
 //! Host geometry is [`Mesh`], [`Camera`] and [`Pose`]; every fallible call returns
 //! [`Result`] with an [`Error`] that names what went wrong (a device limit, bad input, a
 //! Vulkan call). `gpu` is the only module that calls `ash`. The examples
@@ -105,10 +110,17 @@ pub mod mesh;
 pub mod raster;
 pub mod register;
 pub mod rng;
+#[doc(hidden)] // the compiled SPIR-V and its reflected contracts, for the engine's tests
 pub mod shaders;
 pub mod shape;
 pub mod support;
 
 pub use camera::{Camera, Pose};
+pub use cpd::CpdParams;
+pub use diff::{DiffRenderer, Scene};
 pub use error::{Error, Result};
+pub use gpu::Context;
 pub use mesh::Mesh;
+pub use raster::{Outputs, Rasterizer, View};
+pub use register::{Gravity, Job, RegisterParams, Registrar, Registration};
+pub use shape::ShapeSpace;

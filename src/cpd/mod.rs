@@ -21,9 +21,13 @@
 //! targets survive): beta and lambda are in those units, and results are mapped back, so
 //! millimetres and metres give the same answer.
 
+#[doc(hidden)] // CPD's internals, public for its tests and benchmarks
 pub mod linalg;
+#[doc(hidden)]
 pub mod m_step;
+#[doc(hidden)]
 pub mod neighbours;
+#[doc(hidden)] // the float64 model the tests check the device against
 pub mod reference;
 
 use std::time::Instant;

@@ -13,6 +13,7 @@
 //!
 //! [`reference`](mod@reference) is the float64 model the tests differentiate by central differences.
 
+#[doc(hidden)] // the float64 model the tests check the device against
 pub mod reference;
 
 use std::collections::HashMap;

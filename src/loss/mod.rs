@@ -4,6 +4,7 @@
 //! field of an observed mask is computed on the device by jump flooding.
 //! [`reference`](mod@reference) holds the float64 versions used by tests.
 
+#[doc(hidden)] // the float64 model the tests check the device against
 pub mod reference;
 
 use std::path::Path;

@@ -3,6 +3,7 @@
 //! views of one mesh, plus a plain Lambert-shaded colour render for pictures and as the
 //! benchmark baseline. [`reference`](mod@reference) is the CPU float64 rasterizer the tests compare to.
 
+#[doc(hidden)] // the float64 model the tests check the device against
 pub mod reference;
 
 use bytemuck::{Pod, Zeroable};
