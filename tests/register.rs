@@ -824,7 +824,13 @@ fn the_starts_turns_find_a_mug_s_handle() {
     let off = |from: usize| {
         let starts = vkdr::register::turned_starts(start, up, from, vkdr::register::START_TURN);
         let result = registrar
-            .register_from_starts(&ctx, job, &starts, &params, |_, _| {})
+            .register_starts(
+                &ctx,
+                job,
+                vkdr::register::Starts::for_params(&starts, &params),
+                &params,
+                |_, _| {},
+            )
             .unwrap();
         // The stages the losses hold, in order, adding up to them.
         let counts: usize = result.stages.iter().map(|s| s.1).sum();
@@ -846,6 +852,21 @@ fn the_starts_turns_find_a_mug_s_handle() {
         "one start found the handle ({one} degrees): no test of the turns"
     );
     assert!(five < 5.0, "five starts end {five} degrees off");
+    // Turns need an aligned fit to be tried on: without an alignment stage they are
+    // refused before any work.
+    let starts = vkdr::register::turned_starts(start, up, 3, vkdr::register::START_TURN);
+    let unaligned = RegisterParams { align: 0, ..params };
+    let refused = registrar
+        .register_with_turns(&ctx, job, &starts, &unaligned, |_, _| {})
+        .unwrap_err();
+    assert!(
+        refused.to_string().contains("after a pose alignment"),
+        "{refused}"
+    );
+    assert!(matches!(
+        vkdr::register::Starts::for_params(&starts, &unaligned),
+        vkdr::register::Starts::Poses(_)
+    ));
 }
 
 /// A progress callback that returns `Break` stops the registration after that chunk with

@@ -261,6 +261,39 @@ pub const DEFAULT_STARTS: usize = 5;
 /// start's fit; past +-4 turns of 15 degrees a start is no longer near the first).
 pub const MAX_STARTS: usize = 8;
 
+/// How a registration uses several starting poses ([`Registrar::register_starts`]).
+#[derive(Clone, Copy, Debug)]
+pub enum Starts<'a> {
+    /// Every pose registered in full (one batch), the least final loss kept.
+    Poses(&'a [Pose]),
+    /// The first pose registered, then the turns that take it to the others tried on its
+    /// fit ([`Registrar::register_with_turns`]; [`turned_starts`] makes such poses).
+    Turns(&'a [Pose]),
+}
+
+impl<'a> Starts<'a> {
+    /// The schedules' rule: turns where `params` align the pose first (the pose free),
+    /// every pose in full otherwise.
+    pub fn for_params(poses: &'a [Pose], params: &RegisterParams) -> Self {
+        if params.pose_every > 0 && params.align > 0 {
+            Starts::Turns(poses)
+        } else {
+            Starts::Poses(poses)
+        }
+    }
+}
+
+/// One job per starting pose: `job` from each of `poses`.
+fn jobs_from<'a>(job: Job<'a>, poses: &[Pose]) -> Vec<Job<'a>> {
+    poses
+        .iter()
+        .map(|&pose| Job {
+            view: View { pose, ..job.view },
+            ..job
+        })
+        .collect()
+}
+
 /// An error unless `count` is 1 to [`MAX_STARTS`].
 pub fn check_starts(count: usize) -> Result<()> {
     if (1..=MAX_STARTS).contains(&count) {
@@ -478,7 +511,7 @@ pub fn start_turns(count: usize, step: f64) -> Vec<f64> {
         .collect()
 }
 
-/// `count` starting poses for [`Registrar::register_from_starts`]: `pose`, then `pose`
+/// `count` starting poses for [`Registrar::register_starts`]: `pose`, then `pose`
 /// with the object first turned about its own `up` axis (through its origin) by each
 /// further [`start_turns`], so that a start lies on either side of a minimum next to
 /// `pose`'s.
@@ -660,37 +693,27 @@ impl Registrar {
 
     /// Registers `job` from several starting poses and keeps what the images prefer,
     /// where one start may stop in a local minimum of the rotation ([`turned_starts`]
-    /// makes such starts, turned about the up axis). With an alignment stage (pose
-    /// optimised, `params.align` > 0) the first start is registered, and the fitted shape
-    /// is then turned as each further start was turned from the first and scored by one
-    /// evaluation; from a turn that scores [`TURN_GAIN`] lower the joint fit runs again
-    /// and the lower final loss is kept (`Registrar::check_turns`, private): k starts cost one
-    /// registration, k evaluations and a second joint fit where a turn wins (`vkdr
-    /// bench-register` times it). Without an alignment stage every start runs in full
-    /// (one [`Registrar::register_batch`]) and the least final loss is kept. The result's
-    /// `milliseconds` is the wall time and its `iterations` count every evaluation. An
+    /// makes such starts, turned about the up axis), as `starts` says: [`Starts::Turns`]
+    /// ([`Registrar::register_with_turns`]) or [`Starts::Poses`] (every start in full, one
+    /// [`Registrar::register_batch`], the least final loss kept). The result's
+    /// `milliseconds` is the wall time and its `evaluations` count every evaluation. An
     /// error unless 1 to [`MAX_STARTS`] starts are given ([`check_starts`]).
-    pub fn register_from_starts(
+    pub fn register_starts(
         &self,
         ctx: &Context,
         job: Job,
-        starts: &[Pose],
+        starts: Starts,
         params: &RegisterParams,
         on_chunk: impl OnChunk,
     ) -> Result<Registration> {
-        check_starts(starts.len())?;
-        let jobs: Vec<Job> = starts
-            .iter()
-            .map(|&pose| Job {
-                view: View { pose, ..job.view },
-                ..job
-            })
-            .collect();
-        if params.pose_every > 0 && params.align > 0 {
-            let mut best = self.register_jobs(ctx, &jobs, params, true, on_chunk)?;
-            return Ok(best.remove(0));
-        }
-        let runs = self.register_batch(ctx, &jobs, params, on_chunk)?;
+        let poses = match starts {
+            Starts::Turns(poses) => {
+                return self.register_with_turns(ctx, job, poses, params, on_chunk)
+            }
+            Starts::Poses(poses) => poses,
+        };
+        check_starts(poses.len())?;
+        let runs = self.register_batch(ctx, &jobs_from(job, poses), params, on_chunk)?;
         let milliseconds = runs.iter().map(|r| r.milliseconds).fold(0.0, f64::max);
         let evaluations = runs.iter().map(|r| r.evaluations).sum();
         let best = runs
@@ -702,6 +725,35 @@ impl Registrar {
             evaluations,
             ..best
         })
+    }
+
+    /// Registers `job` from the first of `starts`, then turns the fitted shape as each
+    /// further start was turned from the first and scores it by one evaluation; from a
+    /// turn that scores [`TURN_GAIN`] lower the joint fit runs again and the lower final
+    /// loss is kept (`Registrar::check_turns`, private): k starts cost one registration, k
+    /// evaluations and a second joint fit where a turn wins (`vkdr bench-register` times
+    /// it). Needs the pose free with an alignment stage (`params.pose_every` and
+    /// `params.align` > 0): the turns are tried on the aligned fit. An error otherwise,
+    /// and unless 1 to [`MAX_STARTS`] starts are given.
+    pub fn register_with_turns(
+        &self,
+        ctx: &Context,
+        job: Job,
+        starts: &[Pose],
+        params: &RegisterParams,
+        on_chunk: impl OnChunk,
+    ) -> Result<Registration> {
+        check_starts(starts.len())?;
+        if !(params.pose_every > 0 && params.align > 0) {
+            return Err(Error::InvalidInput(
+                "turns are tried on the fit after a pose alignment: the parameters need the \
+                 pose free (pose_every) and an alignment stage (align); for every start run \
+                 in full, give Starts::Poses"
+                    .into(),
+            ));
+        }
+        let mut best = self.register_jobs(ctx, &jobs_from(job, starts), params, true, on_chunk)?;
+        Ok(best.remove(0))
     }
 
     /// Runs several independent registrations together: each chunk of iterations of all
@@ -722,7 +774,8 @@ impl Registrar {
 
     /// [`Registrar::register_batch`]; with `from_starts` (and an alignment stage) the
     /// jobs are one registration's starts: the first is registered, and the turns that
-    /// took it to the others are tried on its fit ([`Registrar::check_turns`]); one result.
+    /// took it to the others are tried on its fit ([`Registrar::check_turns`]); one result
+    /// ([`Registrar::register_with_turns`]).
     fn register_jobs(
         &self,
         ctx: &Context,

@@ -260,8 +260,13 @@ pub fn run(args: &Args) -> Result<()> {
         registrar.register_batch(ctx, &jobs[..1], &params, |_, _| {})?;
         one.push(t.elapsed().as_secs_f64() * 1e3);
         let t = Instant::now();
-        from_starts =
-            Some(registrar.register_from_starts(ctx, jobs[0], &starts, &params, |_, _| {})?);
+        from_starts = Some(registrar.register_starts(
+            ctx,
+            jobs[0],
+            vkdr::register::Starts::for_params(&starts, &params),
+            &params,
+            |_, _| {},
+        )?);
         many.push(t.elapsed().as_secs_f64() * 1e3);
     }
     eprintln!();

@@ -96,7 +96,7 @@ pub struct EvalSettings {
     /// object's up axis by multiples of the rotation noise
     /// ([`vkdr::register::turned_starts`]); the noisy start is registered and the others'
     /// turns are tried on its fit, by the loss (what the images tell, not the error)
-    /// (`Registrar::register_from_starts`); the milliseconds are the wall time and the
+    /// (`Registrar::register_with_turns`); the milliseconds are the wall time and the
     /// iterations count every evaluation.
     pub starts: usize,
     /// A real frame's ways, rendered into each trial's first view: a box in front of the
@@ -1052,13 +1052,19 @@ pub fn evaluate_instance(
             settings.translation_noise,
             settings.rotation_noise,
         );
-        // The noisy start and it turned about the up axis (Registrar::register_from_starts).
+        // The noisy start and it turned about the up axis (Registrar::register_starts).
         let starts = turned_starts(start, settings.up, settings.starts, settings.rotation_noise);
         let first = job(View {
             camera: view.camera,
             pose: start,
         });
-        let result = registrar.register_from_starts(ctx, first, &starts, &pose_noise, |_, _| {})?;
+        let result = registrar.register_starts(
+            ctx,
+            first,
+            vkdr::register::Starts::for_params(&starts, &pose_noise),
+            &pose_noise,
+            |_, _| {},
+        )?;
         let (rotation_error, translation_error) = pose_error(result.pose, pose);
         let rotation_error_symmetric = if symmetric {
             symmetric_rotation_error(result.pose, pose, settings.up)

@@ -9,7 +9,7 @@ use image::{Rgb, RgbImage};
 use vkdr::gpu::Context;
 use vkdr::io::{write_json, write_npy, write_png};
 use vkdr::raster::View;
-use vkdr::register::{Job, RegisterParams, Registrar, Registration};
+use vkdr::register::{Job, RegisterParams, Registrar, Registration, Starts};
 use vkdr::Pose;
 use vkdr_app::eval;
 
@@ -84,7 +84,13 @@ pub fn register(
             ".".repeat(30 - filled)
         );
     };
-    let result = registrar.register_from_starts(ctx, job, starts, params, progress)?;
+    let result = registrar.register_starts(
+        ctx,
+        job,
+        Starts::for_params(starts, params),
+        params,
+        progress,
+    )?;
     eprintln!();
     let mesh = space.canonical.with_points(&result.vertices)?;
     mesh.save_obj(out.join("deformed.obj"))?;

@@ -444,11 +444,13 @@ impl Device {
                 let params = options.params(&looks, camera, !others.is_empty())?;
                 let starts = options.starts(view)?;
                 let total = params.total_iterations();
-                parts
-                    .registrar(ctx)?
-                    .register_from_starts(ctx, job, &starts, &params, |done, _| {
-                        progress.call(done, total)
-                    })
+                parts.registrar(ctx)?.register_starts(
+                    ctx,
+                    job,
+                    register::Starts::for_params(&starts, &params),
+                    &params,
+                    |done, _| progress.call(done, total),
+                )
             })
         });
         let result = progress.finish(result)?;
@@ -521,9 +523,13 @@ impl Device {
                     .enumerate()
                     .map(|(k, job)| {
                         let starts = options.starts(job.view)?;
-                        registrar.register_from_starts(ctx, *job, &starts, &params, |done, _| {
-                            progress.call(k * total + done, all)
-                        })
+                        registrar.register_starts(
+                            ctx,
+                            *job,
+                            register::Starts::for_params(&starts, &params),
+                            &params,
+                            |done, _| progress.call(k * total + done, all),
+                        )
                     })
                     .collect()
             })
