@@ -710,7 +710,7 @@ mod tests {
         let (first, last) = (projected(&vec![0.0; n]), projected(&reference.accepted));
         assert!(last < 1e-3 * first, "projected gradient {first} -> {last}");
         let x = read_x(&state);
-        let pose = super::super::read_pose(&views).unwrap();
+        let pose = super::super::task::read_pose(&views).unwrap();
         let w = DVec3::new(x[k + 3], x[k + 4], x[k + 5]);
         let want_r = DMat3::from_quat(glam::DQuat::from_scaled_axis(w)) * start.rotation_matrix();
         let want_t = start.translation + DVec3::new(x[k], x[k + 1], x[k + 2]);

@@ -1,0 +1,256 @@
+//! Several starting poses: the starts turned about the up axis, the turns tried on the
+//! first start's fit, and the pivot a symmetric body turns about.
+
+use glam::{DMat3, DVec3};
+
+use crate::error::{Error, Result};
+use crate::raster::View;
+use crate::Pose;
+
+use super::{nearest, Job, RegisterParams, Registration};
+
+/// The turn between the starts of a registration with the pose free (`vkdr register`
+/// turns its starts about the up axis by multiples of it, [`turned_starts`]; `vkdr eval`
+/// by its rotation noise, the same 15 degrees by default).
+pub const START_TURN: f64 = 15f64.to_radians();
+
+/// Starts of a registration with the pose free unless told otherwise: the start and it
+/// turned by +-1 and +-2 [`START_TURN`]s (against a rotation that stops in a local
+/// minimum, as a mug's handle; docs/evaluation.md has the cost). `vkdr register`, `vkdr
+/// eval`, `eval-frames`, `bench-register` and the Python module take it from here.
+pub const DEFAULT_STARTS: usize = 5;
+/// The most starts one registration takes (each start's turn is scored on the first
+/// start's fit; past +-4 turns of 15 degrees a start is no longer near the first).
+pub const MAX_STARTS: usize = 8;
+
+/// How a registration uses several starting poses ([`Registrar::register_starts`]).
+#[derive(Clone, Copy, Debug)]
+pub enum Starts<'a> {
+    /// Every pose registered in full (one batch), the least final loss kept.
+    Poses(&'a [Pose]),
+    /// The first pose registered, then the turns that take it to the others tried on its
+    /// fit ([`Registrar::register_with_turns`]; [`turned_starts`] makes such poses).
+    Turns(&'a [Pose]),
+}
+
+impl<'a> Starts<'a> {
+    /// The schedules' rule: turns where `params` align the pose first (the pose free),
+    /// every pose in full otherwise.
+    pub fn for_params(poses: &'a [Pose], params: &RegisterParams) -> Self {
+        if params.pose_every > 0 && params.align > 0 {
+            Starts::Turns(poses)
+        } else {
+            Starts::Poses(poses)
+        }
+    }
+}
+
+/// One job per starting pose: `job` from each of `poses`.
+pub(super) fn jobs_from<'a>(job: Job<'a>, poses: &[Pose]) -> Vec<Job<'a>> {
+    poses
+        .iter()
+        .map(|&pose| Job {
+            view: View { pose, ..job.view },
+            ..job
+        })
+        .collect()
+}
+
+/// An error unless `count` is 1 to [`MAX_STARTS`].
+pub fn check_starts(count: usize) -> Result<()> {
+    if (1..=MAX_STARTS).contains(&count) {
+        return Ok(());
+    }
+    Err(Error::InvalidInput(format!(
+        "starts must be 1 to {MAX_STARTS}, not {count}"
+    )))
+}
+
+/// The turns (radians) of [`turned_starts`]: 0, +`step`, -`step`, +2 `step`, -2 `step`,
+/// ..., `count` of them.
+pub fn start_turns(count: usize, step: f64) -> Vec<f64> {
+    (0..count)
+        .map(|j| {
+            let turns = j.div_ceil(2) as f64 * step;
+            if j % 2 == 1 {
+                turns
+            } else {
+                -turns
+            }
+        })
+        .collect()
+}
+
+/// `count` starting poses for [`Registrar::register_starts`]: `pose`, then `pose`
+/// with the object first turned about its own `up` axis (through its origin) by each
+/// further [`start_turns`], so that a start lies on either side of a minimum next to
+/// `pose`'s.
+pub fn turned_starts(pose: Pose, up: DVec3, count: usize, step: f64) -> Vec<Pose> {
+    start_turns(count, step)
+        .into_iter()
+        .map(|angle| {
+            let turn = DMat3::from_axis_angle(up.normalize(), angle);
+            Pose {
+                translation: pose.translation,
+                rotation: glam::DQuat::from_mat3(&(pose.rotation_matrix() * turn)).to_scaled_axis(),
+            }
+        })
+        .collect()
+}
+
+/// The rotations (object frame) that took the first job's pose to each job's: identity
+/// first.
+pub(super) fn relative_turns(jobs: &[Job]) -> Vec<DMat3> {
+    let first = jobs[0].view.pose.rotation_matrix();
+    jobs.iter()
+        .map(|job| first.transpose() * job.view.pose.rotation_matrix())
+        .collect()
+}
+
+/// A point on the axis about which `vertices` are most nearly symmetric, among the axes
+/// along `axis`: the shape turned by +-30 degrees about it lies closest to itself, the
+/// points that land farther than 1.5 times the median distance from it (a handle) left out.
+/// Iterated closest points on at most 1000 vertices (found in a grid: a scan of all made
+/// this 200 ms of a 0.9 s registration on lavapipe); the two turns' opposite biases along
+/// the turn (the nearest vertex lies behind or ahead of a turned one) cancel. The origin
+/// for no finite vertices.
+pub fn symmetry_pivot(vertices: &[DVec3], axis: DVec3) -> DVec3 {
+    let step = vertices.len().div_ceil(1000).max(1);
+    // A non-finite vertex is no one's nearest (the grid needs finite points).
+    let points: Vec<DVec3> = vertices
+        .iter()
+        .step_by(step)
+        .copied()
+        .filter(|p| p.is_finite())
+        .collect();
+    let axis = axis.normalize();
+    let across = |v: DVec3| v - axis * axis.dot(v);
+    let half_turn = 15f64.to_radians();
+    if points.is_empty() {
+        return DVec3::ZERO;
+    }
+    let nearest = nearest::Nearest::new(&points);
+    let mut pivot = across(crate::mesh::centroid(&points));
+    for _ in 0..20 {
+        let estimates = [1.0, -1.0].map(|side: f64| {
+            let turn = DMat3::from_axis_angle(axis, side * 2.0 * half_turn);
+            // Turned about the pivot c, x goes to turn x + (I - turn) c; its nearest point
+            // q asks (I - turn) c = q - turn x, across the axis. There I - turn is a turn
+            // by side (15 - 90) degrees scaled by 2 sin(15 degrees).
+            let mut pairs: Vec<(f64, DVec3)> = points
+                .iter()
+                .map(|&x| {
+                    let moved = turn * x + (pivot - turn * pivot);
+                    let q = nearest.nearest(moved);
+                    ((q - moved).length_squared(), across(q - turn * x))
+                })
+                .collect();
+            let mut distances: Vec<f64> = pairs.iter().map(|p| p.0).collect();
+            distances.sort_by(f64::total_cmp);
+            // Squared: 2.25 times the median's square is 1.5 times its distance.
+            let far = 2.25 * distances[distances.len() / 2];
+            pairs.retain(|p| p.0 <= far);
+            let target = pairs.iter().map(|p| p.1).sum::<DVec3>() / pairs.len() as f64;
+            let inverse = DMat3::from_axis_angle(axis, side * (90f64.to_radians() - half_turn));
+            inverse * target / (2.0 * half_turn.sin())
+        });
+        pivot = 0.5 * (estimates[0] + estimates[1]);
+    }
+    pivot
+}
+
+/// A turned pose's loss must be this fraction below the fit's for the joint fit to run
+/// again from it (the registration from starts).
+pub const TURN_GAIN: f64 = 0.05;
+/// Pose-only iterations that score a turned pose (the registration from starts).
+pub const TURN_ITERATIONS: usize = 1;
+
+/// `jobs` at the poses that `results` reached.
+pub(super) fn at_poses<'a>(jobs: &[Job<'a>], results: &[Registration]) -> Vec<Job<'a>> {
+    jobs.iter()
+        .zip(results)
+        .map(|(job, r)| Job {
+            view: View {
+                pose: r.pose,
+                ..job.view
+            },
+            ..*job
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A mug-like shape (a ring of points about an axis off the origin, and a handle on
+    /// one side) turns about its body's axis: the pivot lands on it, where the centroid
+    /// is pulled toward the handle.
+    #[test]
+    fn the_symmetry_pivot_is_the_body_s_axis() {
+        let axis_at = DVec3::new(0.015, 0.0, -0.01);
+        let mut points = Vec::new();
+        for ring in 0..12 {
+            for k in 0..40 {
+                let a = k as f64 * std::f64::consts::TAU / 40.0;
+                let y = ring as f64 * 0.008;
+                points.push(axis_at + DVec3::new(0.04 * a.cos(), y, 0.04 * a.sin()));
+            }
+        }
+        for k in 0..60 {
+            let a = k as f64 * std::f64::consts::TAU / 60.0;
+            let handle = DVec3::new(0.06 + 0.015 * a.cos(), 0.045 + 0.025 * a.sin(), 0.0);
+            points.push(axis_at + handle);
+        }
+        let centroid = crate::mesh::centroid(&points);
+        let across = |v: DVec3| DVec3::new(v.x, 0.0, v.z);
+        assert!(across(centroid - axis_at).length() > 4e-3, "{centroid}");
+        let pivot = symmetry_pivot(&points, DVec3::new(0.0, 2.0, 0.0));
+        assert!(
+            across(pivot - axis_at).length() < 5e-4,
+            "{pivot} against {axis_at}"
+        );
+    }
+
+    /// A non-finite vertex (a diverged fit) is left out rather than poisoning the pivot;
+    /// with none finite the pivot is the origin.
+    #[test]
+    fn the_symmetry_pivot_leaves_non_finite_vertices_out() {
+        let axis = DVec3::Y;
+        let ring: Vec<DVec3> = (0..40)
+            .map(|k| {
+                let a = k as f64 * std::f64::consts::TAU / 40.0;
+                DVec3::new(0.02 + 0.04 * a.cos(), 0.0, 0.04 * a.sin())
+            })
+            .collect();
+        let mut with_nan = ring.clone();
+        with_nan.insert(7, DVec3::new(f64::NAN, 0.0, 0.0));
+        with_nan.push(DVec3::splat(f64::INFINITY));
+        assert_eq!(symmetry_pivot(&with_nan, axis), symmetry_pivot(&ring, axis));
+        assert_eq!(symmetry_pivot(&[DVec3::NAN], axis), DVec3::ZERO);
+    }
+
+    /// The starts alternate sides at growing turns, and a turn about the object's up axis
+    /// keeps the position and the axis and moves a point off the axis by the turn.
+    #[test]
+    fn starts_turn_about_the_up_axis_on_either_side() {
+        let r = 0.25;
+        assert!(start_turns(0, r).is_empty());
+        assert_eq!(start_turns(5, r), vec![0.0, r, -r, 2.0 * r, -2.0 * r]);
+        let pose = Pose::new([0.02, -0.01, 0.6], [0.3, -0.2, 0.1]).unwrap();
+        let up = DVec3::new(0.0, 2.0, 0.0);
+        let starts = turned_starts(pose, up, 3, r);
+        assert_eq!(starts.len(), 3);
+        assert!((starts[0].rotation - pose.rotation).length() < 1e-12);
+        let x = DVec3::X;
+        for (turned, angle) in starts.iter().zip([0.0, r, r]) {
+            assert!((turned.translation - pose.translation).length() < 1e-12);
+            assert!((turned.apply(up) - pose.apply(up)).length() < 1e-12);
+            let moved = (turned.apply(x) - pose.apply(x)).length();
+            assert!((moved - 2.0 * (angle / 2.0).sin()).abs() < 1e-12, "{moved}");
+        }
+        // The second and third turn to either side.
+        let side = |p: &Pose| pose.inverse().followed_by(p).apply(x).z;
+        assert!(side(&starts[1]) * side(&starts[2]) < 0.0);
+    }
+}
