@@ -122,5 +122,7 @@ pub use error::{Error, Result};
 pub use gpu::Context;
 pub use mesh::Mesh;
 pub use raster::{Outputs, Rasterizer, View};
-pub use register::{Gravity, Job, RegisterParams, Registrar, Registration};
+pub use register::{
+    Gravity, Job, Observation, Plan, PoseMode, RegisterParams, Registrar, Registration, ViewImages,
+};
 pub use shape::ShapeSpace;

@@ -44,7 +44,7 @@ pub struct Job<'a> {
     pub gravity: Option<Gravity>,
     /// The pixel count each view's loss is averaged over (None: the view's own): a job
     /// cut to a region of interest of a larger image keeps the larger image's
-    /// ([`SceneDesc::loss_pixels`]).
+    /// ([`crate::diff::SceneDesc::loss_pixels`]).
     pub loss_pixels: Option<u64>,
 }
 

@@ -28,6 +28,7 @@ use crate::Pose;
 mod gravity;
 mod job;
 mod nearest;
+mod observation;
 mod optimizer;
 mod params;
 mod prepare;
@@ -37,6 +38,7 @@ mod task;
 
 pub use gravity::{Gravity, GRAVITY_WEIGHT};
 pub use job::{all_views, Job, OtherView};
+pub use observation::{Observation, Plan, PoseMode, ViewImages};
 use params::SCALE_UNIT;
 pub use params::{
     observation_prior, RegisterParams, CODE_BOUND, DETAIL, MAX_ITERATIONS, REACH, REACH_ITERATIONS,
@@ -129,6 +131,7 @@ impl Registration {
     }
 }
 
+/// What a registration calls after each chunk of iterations with the iterations done
 /// and the latest loss (progress bars): any `FnMut(usize, f64)`, returning nothing to go
 /// on or a [`ControlFlow`] whose `Break` stops the work with [`Error::Stopped`] (a
 /// cancelled job, Ctrl-C in a host language). The work stops between submissions, so

@@ -64,13 +64,13 @@ pub struct RegisterParams {
     pub plateau: f64,
     /// The pixels across the object a single view is rendered and compared at, at least:
     /// an object larger in its image is rendered at a coarser whole step (each pixel the
-    /// mean of step x step of the image's, [`Region`]), which costs a step squared fewer
+    /// mean of step x step of the image's, [`super::Region`]), which costs a step squared fewer
     /// pixels. 0 (the default): the image's own pixels, where the loss and gradients are
     /// exactly the whole image's. The schedules use [`DETAIL`].
     pub detail: u32,
 }
 
-/// A registration's stage ([`Registration::stages`]): the fit (with the pose known, or the
+/// A registration's stage ([`super::Registration::stages`]): the fit (with the pose known, or the
 /// joint fit of pose and shape after an alignment).
 pub const STAGE_FIT: &str = "fit";
 /// The pose aligned alone (`RegisterParams::align`).
@@ -258,8 +258,6 @@ pub fn observation_prior(pixels: usize) -> f64 {
 pub const SCALE_RANGE: (f64, f64) = (1.0 - CODE_BOUND * SCALE_UNIT, 1.0 + CODE_BOUND * SCALE_UNIT);
 /// The relative scale of one optimiser unit of the scale coordinate.
 pub(super) const SCALE_UNIT: f64 = 0.25;
-
-/// What a registration calls after each chunk of iterations with the iterations done
 
 /// The optimisers keep each code coordinate (in their own units, see
 /// `optimizer_coordinates`) within this many units of the mean shape, as

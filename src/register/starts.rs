@@ -23,13 +23,13 @@ pub const DEFAULT_STARTS: usize = 5;
 /// start's fit; past +-4 turns of 15 degrees a start is no longer near the first).
 pub const MAX_STARTS: usize = 8;
 
-/// How a registration uses several starting poses ([`Registrar::register_starts`]).
+/// How a registration uses several starting poses ([`super::Registrar::register_starts`]).
 #[derive(Clone, Copy, Debug)]
 pub enum Starts<'a> {
     /// Every pose registered in full (one batch), the least final loss kept.
     Poses(&'a [Pose]),
     /// The first pose registered, then the turns that take it to the others tried on its
-    /// fit ([`Registrar::register_with_turns`]; [`turned_starts`] makes such poses).
+    /// fit ([`super::Registrar::register_with_turns`]; [`turned_starts`] makes such poses).
     Turns(&'a [Pose]),
 }
 
@@ -81,7 +81,7 @@ pub fn start_turns(count: usize, step: f64) -> Vec<f64> {
         .collect()
 }
 
-/// `count` starting poses for [`Registrar::register_starts`]: `pose`, then `pose`
+/// `count` starting poses for [`super::Registrar::register_starts`]: `pose`, then `pose`
 /// with the object first turned about its own `up` axis (through its origin) by each
 /// further [`start_turns`], so that a start lies on either side of a minimum next to
 /// `pose`'s.

@@ -187,7 +187,7 @@ pub fn run(args: &Args) -> Result<()> {
     let views = vkdr::register::all_views(View { camera, pose }, &others);
     let registrar = Registrar::new(ctx)?;
     let shading = args.shading.then(Shading::default);
-    let eval::Observation {
+    let eval::Images {
         mask: observed,
         depth,
         shaded,

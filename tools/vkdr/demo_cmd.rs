@@ -120,21 +120,19 @@ pub fn run(args: &Args) -> Result<()> {
         rotation: truth.rotation + glam::DVec3::new(0.1, -0.15, 0.05),
     };
     let register_out = out.join("register");
-    let job = vkdr::register::Job::new(
-        &space,
-        &mask,
-        View {
-            camera: settings.camera,
-            pose: start,
+    // What any front end does: the images read into an observation, one start planned.
+    let observation = vkdr::Observation::new(
+        settings.camera,
+        vkdr::ViewImages {
+            mask,
+            ..Default::default()
         },
-    );
-    let result = registration::register(
-        &ctx,
-        job,
-        &[job.view.pose],
-        &settings.pose_noise,
-        &register_out,
     )?;
+    let plan = vkdr::Plan {
+        starts: 1,
+        ..vkdr::Plan::new(start, settings.up, settings.pose_noise)
+    };
+    let result = registration::register(&ctx, &space, &observation, &plan, &register_out)?;
     println!(
         "4. registered with pose noise in {:.0} ms: error {:.2} mm; pictures {2}/overlay_start.png, {2}/overlay_end.png (observed blue, rendered red)",
         result.milliseconds,

@@ -15,7 +15,7 @@ use vkdr::register::Registrar;
 use vkdr::shape::ShapeSpace;
 use vkdr::{Mesh, Pose};
 use vkdr_app::bop::{self, Frame, FrameObject, ObjectCategory};
-use vkdr_app::eval::{self, EvalSettings, GravitySource, Observation, TrialScene, TrialSource};
+use vkdr_app::eval::{self, EvalSettings, GravitySource, Images, TrialScene, TrialSource};
 
 use crate::args::{DepthLossArgs, RenamedArgs};
 use crate::shard;
@@ -505,7 +505,7 @@ fn frame_scene(frame: &Frame, object: &FrameObject, pose: Pose) -> Result<TrialS
             pose,
         },
         others: Vec::new(),
-        observed: Observation {
+        observed: Images {
             mask,
             depth: Some(frame.depth.clone()),
             shaded: None,

@@ -10,7 +10,9 @@ use vkdr::camera::parse_numbers;
 use vkdr::gpu::Context;
 use vkdr::loss;
 use vkdr::raster::View;
-use vkdr::register::{self, turned_starts, Gravity, Job, OtherView, RegisterParams, Registrar};
+use vkdr::register::{
+    self, Gravity, Observation, OtherView, Plan, PoseMode, RegisterParams, Registrar, ViewImages,
+};
 use vkdr::shape::ShapeSpace;
 use vkdr::{Camera, Mesh, Pose};
 use vkdr_app::eval;
@@ -226,86 +228,73 @@ fn read_views(path: &Path, first: &Camera) -> Result<Vec<FurtherView>> {
 
 /// The observation from files: the first view's from the flags, the others' from the
 /// views file. A view without a depth image has no measurement anywhere.
-fn from_files(args: &Args, view: View, further: &[FurtherView]) -> Result<eval::Observation> {
-    let shading = args.shading.shading()?;
-    let (w, h) = (view.camera.width, view.camera.height);
-    let first = args.observed.as_deref().expect("clap requires --observed");
-    let mut files = vec![(
-        Some(first.to_path_buf()),
-        args.observed_depth.clone(),
-        args.observed_shading.clone(),
-    )];
-    files.extend(
-        further
-            .iter()
-            .map(|f| (f.mask.clone(), f.depth.clone(), f.shading.clone())),
-    );
+fn from_files(args: &Args, view: View, further: &[FurtherView]) -> Result<Observation> {
+    let shading = args.shading.shading()?.is_some();
     let with_depth = args.observed_depth.is_some();
-    let mut observed = eval::Observation {
-        mask: Vec::new(),
-        depth: with_depth.then(Vec::new),
-        shaded: shading.map(|_| Vec::new()),
-    };
-    for (v, (mask, depth, shaded)) in files.into_iter().enumerate() {
+    let camera = view.camera;
+    let (w, h) = (camera.width, camera.height);
+    let first = args.observed.as_deref().expect("clap requires --observed");
+    let images = |v: usize,
+                  mask: &Option<PathBuf>,
+                  depth: &Option<PathBuf>,
+                  shaded: &Option<PathBuf>|
+     -> Result<ViewImages> {
         let Some(mask) = mask else {
             bail!("view {v} of the views file has no \"mask\" (needed with --observed)");
         };
-        let mut mask = loss::load_mask(&mask, w, h)?;
-        let ignore = match (&args.ignore, v) {
-            (Some(path), 0) => Some(loss::load_mask(path, w, h)?),
+        let mask = loss::load_mask(mask, w, h)?;
+        let depth = match depth {
+            Some(path) if with_depth => Some(load_depth(args, path, w, h)?),
             _ => None,
         };
-        // Only pixels the mask does not show as object become unknown: BOP's whole `mask`
-        // works as it is (the hidden part is it less mask_visib).
-        let ignore = ignore
-            .map(|ignore| loss::hidden_pixels(&mask, &ignore))
-            .transpose()?;
-        if let Some(ignore) = &ignore {
-            loss::mark_unknown(&mut mask, 1, ignore)?;
-        }
-        if let Some(all) = observed.depth.as_mut() {
-            match depth {
-                Some(path) => all.extend(load_depth(args, &path, w, h)?),
-                None => all.extend(std::iter::repeat_n(0.0, mask.len())),
-            }
-        }
-        if let Some(all) = observed.shaded.as_mut() {
-            let Some(path) = shaded else {
-                bail!(if v == 0 {
-                    "--shading with --observed needs the observed image too (--observed-shading)"
-                        .to_string()
-                } else {
-                    format!("--shading: view {v} of the views file has no \"shading\" image")
-                });
-            };
-            let mut shaded = loss::load_shading(&path, &mask, w, h)?;
-            if let Some(ignore) = &ignore {
-                loss::mark_unknown(&mut shaded, 1, ignore)?;
-            }
-            all.extend(shaded);
-        }
-        observed.mask.extend(mask);
+        let shading = match (shading, shaded) {
+            (false, _) => None,
+            (true, Some(path)) => Some(loss::load_shading(path, &mask, w, h)?),
+            (true, None) => bail!(if v == 0 {
+                "--shading with --observed needs the observed image too (--observed-shading)"
+                    .to_string()
+            } else {
+                format!("--shading: view {v} of the views file has no \"shading\" image")
+            }),
+        };
+        Ok(ViewImages {
+            mask,
+            depth,
+            shading,
+            ignore: None,
+        })
+    };
+    let first = ViewImages {
+        ignore: args
+            .ignore
+            .as_ref()
+            .map(|path| loss::load_mask(path, w, h))
+            .transpose()?,
+        ..images(
+            0,
+            &Some(first.to_path_buf()),
+            &args.observed_depth,
+            &args.observed_shading,
+        )?
+    };
+    let mut observation = Observation::new(camera, first)?;
+    for (v, f) in further.iter().enumerate() {
+        let images = images(v + 1, &f.mask, &f.depth, &f.shading)?;
+        observation = observation.with_view(f.other, images)?;
     }
-    Ok(observed)
+    Ok(observation)
 }
 
 /// The up direction of --gravity: given, or the normal of the support plane fitted in the
 /// observed depth (printed).
-fn gravity(
-    args: &Args,
-    text: &str,
-    up: DVec3,
-    view: View,
-    observed: &eval::Observation,
-) -> Result<Gravity> {
-    let direction = if text == "from-depth" {
-        let Some(depth) = &observed.depth else {
+fn gravity(args: &Args, text: &str, up: DVec3, observed: &Observation) -> Result<Gravity> {
+    let tolerance = args.tilt_tolerance.to_radians();
+    let gravity = if text == "from-depth" {
+        if observed.depth.is_none() {
             bail!("--gravity from-depth needs the observed depth (--observed-depth, or --depth)");
-        };
-        let n = (view.camera.width * view.camera.height) as usize;
-        let mask: Vec<f32> = observed.mask[..n].iter().map(|&m| m.max(0.0)).collect();
-        let plane = vkdr::support::fit_support_plane(&view.camera, &depth[..n], &mask, 0.5)
-            .context("--gravity from-depth")?;
+        }
+        let (gravity, plane) =
+            Gravity::from_depth(observed, up, tolerance).context("--gravity from-depth")?;
         println!(
             "support plane: normal {:.4},{:.4},{:.4} at {:.4} m, {} of {} pixels around the mask on it (rms {:.1} mm)",
             plane.normal.x,
@@ -316,14 +305,13 @@ fn gravity(
             plane.candidates,
             plane.rms * 1e3
         );
-        plane.normal
+        gravity
     } else {
-        DVec3::from_array(parse_numbers::<3>(text, "--gravity")?)
-    };
-    let gravity = Gravity {
-        up,
-        direction,
-        tolerance: args.tilt_tolerance.to_radians(),
+        Gravity {
+            up,
+            direction: DVec3::from_array(parse_numbers::<3>(text, "--gravity")?),
+            tolerance,
+        }
     };
     gravity
         .validate()
@@ -385,19 +373,25 @@ fn rendered(
     mesh: &Path,
     truth: View,
     others: &[OtherView],
-) -> Result<eval::Observation> {
+) -> Result<Observation> {
     let registrar = Registrar::new(ctx)?;
     let mesh = Mesh::load_obj(mesh)?;
     let views = register::all_views(truth, others);
-    eval::observe(
+    let seen = eval::observe(
         ctx,
         &registrar,
         &mesh,
         &views,
         args.depth,
         args.shading.shading()?,
-    )
-    .map_err(Into::into)
+    )?;
+    Ok(Observation {
+        camera: truth.camera,
+        others: others.to_vec(),
+        mask: seen.mask,
+        depth: seen.depth,
+        shaded: seen.shaded,
+    })
 }
 
 pub fn run(args: &Args) -> Result<()> {
@@ -444,52 +438,45 @@ pub fn run(args: &Args) -> Result<()> {
             rendered(&ctx, args, mesh, truth, &others)?
         }
     };
-    if let Some(depth) = &observed.depth {
-        let n = (view.camera.width * view.camera.height) as usize;
-        check_depth_units(&space, &view.camera, &observed.mask[..n], &depth[..n]);
+    if let Some(depth) = observed.first_depth() {
+        check_depth_units(&space, &view.camera, observed.first_mask(), depth);
     }
     // The schedules of `vkdr eval` (with the pose: the pose alone first, then both).
-    let pixels = (view.camera.width * view.camera.height) as usize;
-    let base = if args.optimize_pose {
-        RegisterParams::free_pose(pixels)
+    let mode = if args.optimize_pose {
+        PoseMode::Free
     } else {
-        RegisterParams::known_pose(pixels)
+        PoseMode::Known
     };
+    let base = RegisterParams::for_observation(mode, &observed);
     let optimizer: Option<vkdr::register::Optimizer> = args.optimizer.map(Into::into);
-    let observes_z = observed.depth.is_some() || !others.is_empty();
     let params = RegisterParams {
         iterations: args.iterations.unwrap_or(base.iterations),
         loss: args.loss.into(),
         optimizer: optimizer.unwrap_or(base.optimizer),
         shading: args.shading.shading()?,
-        depth: observed.depth.is_some().then_some(depth_loss),
-        optimize_z: base.optimize_z || (args.optimize_pose && observes_z),
-        code_prior: crate::args::code_prior(&args.code_prior, pixels)?,
+        depth: base.depth.map(|_| depth_loss),
+        code_prior: crate::args::code_prior(&args.code_prior, observed.pixels())?,
         optimize_scale: args.optimize_scale,
         ..base
     };
     let gravity = match &args.gravity {
         None => None,
-        Some(g) => Some(gravity(args, g, up, view, &observed)?),
+        Some(g) => Some(gravity(args, g, up, &observed)?),
     };
-    let job = Job {
-        shaded: observed.shaded.as_deref(),
-        depth: observed.depth.as_deref(),
-        others: &others,
+    let plan = Plan {
+        starts: if args.optimize_pose { args.starts } else { 1 },
         gravity,
-        ..Job::new(&space, &observed.mask, view)
+        ..Plan::new(view.pose, up, params)
     };
-    let count = if args.optimize_pose { args.starts } else { 1 };
-    let starts = turned_starts(view.pose, up, count, register::START_TURN);
-    let result = crate::registration::register(&ctx, job, &starts, &params, &args.out)?;
+    let result = crate::registration::register(&ctx, &space, &observed, &plan, &args.out)?;
     let kept = result.iterations().max(1);
     let first = result.losses.first().copied().unwrap_or(f64::NAN);
     println!(
         "{kept} iterations{} in {:.1} ms ({:.2} ms per iteration); loss {first:.5} -> {:.5}{}",
-        if starts.len() > 1 {
+        if plan.starts > 1 {
             format!(
                 " ({} starts: the first fitted, the others' turns tried on its fit; {} evaluations in all)",
-                starts.len(),
+                plan.starts,
                 result.evaluations
             )
         } else {

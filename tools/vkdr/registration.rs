@@ -9,8 +9,8 @@ use image::{Rgb, RgbImage};
 use vkdr::gpu::Context;
 use vkdr::io::{write_json, write_npy, write_png};
 use vkdr::raster::View;
-use vkdr::register::{Job, RegisterParams, Registrar, Registration, Starts};
-use vkdr::Pose;
+use vkdr::register::{Job, Observation, Plan, Registrar, Registration};
+use vkdr::shape::ShapeSpace;
 use vkdr_app::eval;
 
 /// Observed mask in blue, rendered silhouette in red (overlap magenta); pixels whose
@@ -40,20 +40,21 @@ fn shading_pair(observed: &[f32], rendered: &[f32], width: u32, height: u32) -> 
     })
 }
 
-/// Runs one registration (comparing shading and depth too where `params` asks) from each
-/// of `starts` at once, keeps the least final loss, and writes its outputs: the
-/// pictures of the first view as `overlay_start.png` / `overlay_end.png`
-/// (`shading_end.png`), those of any further view `v` with a `_view{v}` suffix.
+/// Registers `space` to `observation` as `plan` says ([`Registrar::register_observation`],
+/// with a progress bar) and writes its outputs: the pictures of the first view as
+/// `overlay_start.png` / `overlay_end.png` (`shading_end.png`), those of any further view
+/// `v` with a `_view{v}` suffix, the deformed mesh, its code, pose and loss log.
 pub fn register(
     ctx: &Context,
-    job: Job,
-    starts: &[Pose],
-    params: &RegisterParams,
+    space: &ShapeSpace,
+    observation: &Observation,
+    plan: &Plan,
     out: &Path,
 ) -> Result<Registration> {
     let registrar = Registrar::new(ctx)?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let space = job.space;
+    let job = observation.job(space, plan.start);
+    let params = &plan.params;
     let views = job.views();
     let (w, h) = (job.view.camera.width, job.view.camera.height);
     let pixels = (w * h) as usize;
@@ -84,13 +85,7 @@ pub fn register(
             ".".repeat(30 - filled)
         );
     };
-    let result = registrar.register_starts(
-        ctx,
-        job,
-        Starts::for_params(starts, params),
-        params,
-        progress,
-    )?;
+    let result = registrar.register_observation(ctx, space, observation, plan, progress)?;
     eprintln!();
     let mesh = space.canonical.with_points(&result.vertices)?;
     mesh.save_obj(out.join("deformed.obj"))?;

@@ -1,149 +1,22 @@
 //! `vkdr.Device`: one Vulkan device and the engine's pipelines on it (built on first use),
 //! with the rasterizer, the exact loss gradients and the registration.
 
-use std::sync::{Arc, Mutex};
-use std::time::Instant;
+use std::sync::Arc;
 
 use glam::{DMat3, DVec3};
-use pyo3::exceptions::{PyRuntimeError, PyTypeError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
-use vkdr::cpd::CpdPipelines;
-use vkdr::diff::{DepthLoss, ObservedDepth, Scene, SceneDesc, Shading};
-use vkdr::gpu::{Context, ContextOptions};
-use vkdr::loss::{self, Loss};
+use vkdr::diff::{ObservedDepth, Scene, SceneDesc};
+use vkdr::loss::Loss;
 use vkdr::raster::{Outputs, View};
-use vkdr::register::{self, Gravity, Job, Optimizer, OtherView, RegisterParams, Registrar};
+use vkdr::register::{Job, Plan, ViewImages};
 
 use crate::arrays::{self, array, bad};
+use crate::engine::{Device, Engine};
+use crate::options::{further_views, DepthOptions, Looks, Options};
 use crate::space::{Registration, ShapeSpace};
 use crate::{OrPy, Progress};
-
-/// A device and the pipelines built on it so far. Its work runs one call at a time (a
-/// queue takes one submission at a time; two Python threads calling at once wait in turn,
-/// with the GIL released).
-pub struct Engine {
-    ctx: Context,
-    parts: Mutex<Parts>,
-    engine_ms: Mutex<f64>,
-    /// The process that made it: a Vulkan device does not survive a fork.
-    pid: u32,
-}
-
-/// The pipelines, each built when a call first needs it.
-#[derive(Default)]
-pub struct Parts {
-    registrar: Option<Registrar>,
-    cpd: Option<CpdPipelines>,
-}
-
-impl Parts {
-    /// The registration pipelines (they hold the differentiable renderer and the
-    /// rasterizer).
-    pub fn registrar(&mut self, ctx: &Context) -> vkdr::Result<&Registrar> {
-        if self.registrar.is_none() {
-            self.registrar = Some(Registrar::new(ctx)?);
-        }
-        Ok(self.registrar.as_ref().expect("built above"))
-    }
-
-    /// CPD's pipelines.
-    pub fn cpd(&mut self, ctx: &Context) -> vkdr::Result<&CpdPipelines> {
-        if self.cpd.is_none() {
-            self.cpd = Some(CpdPipelines::new(ctx)?);
-        }
-        Ok(self.cpd.as_ref().expect("built above"))
-    }
-}
-
-impl Engine {
-    fn new(name: Option<String>, validation: bool) -> vkdr::Result<Self> {
-        let mut options = ContextOptions::default();
-        options.validation |= validation;
-        if name.is_some() {
-            options.device = name;
-        }
-        Ok(Self {
-            ctx: Context::with_options(options)?,
-            parts: Mutex::new(Parts::default()),
-            engine_ms: Mutex::new(0.0),
-            pid: std::process::id(),
-        })
-    }
-
-    /// Whether this process made the engine (not a child forked after it was made).
-    fn is_ours(&self) -> bool {
-        self.pid == std::process::id()
-    }
-
-    /// Runs `work` on the device, after any other call's, and keeps its wall time.
-    pub fn run<T>(
-        &self,
-        work: impl FnOnce(&Context, &mut Parts) -> vkdr::Result<T>,
-    ) -> PyResult<T> {
-        if !self.is_ours() {
-            return Err(PyRuntimeError::new_err(format!(
-                "this Device was made in process {} and cannot be used in a forked child \
-                 (process {}): make a vkdr.Device() in the child (a DataLoader's \
-                 worker_init_fn), or start workers with the 'spawn' method",
-                self.pid,
-                std::process::id()
-            )));
-        }
-        let mut parts = self
-            .parts
-            .lock()
-            .map_err(|_| PyRuntimeError::new_err("an earlier call on this device panicked"))?;
-        let start = Instant::now();
-        let result = work(&self.ctx, &mut parts);
-        if let Ok(mut ms) = self.engine_ms.lock() {
-            *ms = start.elapsed().as_secs_f64() * 1e3;
-        }
-        result.py()
-    }
-}
-
-/// The engine of calls given no device: the best device, made on first use.
-static DEFAULT: Mutex<Option<Arc<Engine>>> = Mutex::new(None);
-
-/// `device`'s engine, or the default one.
-pub fn engine_of(py: Python<'_>, device: Option<&Bound<'_, Device>>) -> PyResult<Arc<Engine>> {
-    if let Some(device) = device {
-        return Ok(device.get().engine.clone());
-    }
-    py.detach(|| {
-        let mut default = DEFAULT
-            .lock()
-            .map_err(|_| PyRuntimeError::new_err("the default device failed to start"))?;
-        // A forked child makes its own (the parent's is left alone: its Vulkan objects
-        // are the parent's, not the child's to destroy).
-        if let Some(inherited) = default.take_if(|engine| !engine.is_ours()) {
-            std::mem::forget(inherited);
-        }
-        if default.is_none() {
-            *default = Some(Arc::new(Engine::new(None, false).py()?));
-        }
-        Ok(default.as_ref().expect("made above").clone())
-    })
-}
-
-/// The device of calls given none (`vkdr.cpd`, `vkdr.ShapeSpace.build`,
-/// `vkdr.torch.silhouette_loss`): the best device, made on first use and shared.
-#[pyfunction]
-pub fn default_device(py: Python<'_>) -> PyResult<Device> {
-    Ok(Device {
-        engine: engine_of(py, None)?,
-    })
-}
-
-/// A Vulkan device: `Device()` picks the best (a discrete GPU first; `VKDR_DEVICE` or
-/// `name`, an index or part of a name, chooses another). `validation=True` turns on the
-/// Khronos validation layer.
-#[pyclass(module = "vkdr", frozen)]
-pub struct Device {
-    pub engine: Arc<Engine>,
-}
 
 #[pymethods]
 impl Device {
@@ -343,15 +216,14 @@ impl Device {
         let mesh = crate::mesh(vertices, faces)?;
         let camera = crate::camera(K, crate::size(size, "size")?)?;
         let pose = crate::pose(pose, "pose")?;
-        let wh = (camera.width, camera.height);
         let loss: Loss = loss.parse().map_err(|e| bad("loss", e))?;
-        let looks = Looks::read(
+        let looks = Looks::read_views(
             mask,
             depth,
             shading,
             ignore,
-            wh,
-            1,
+            camera,
+            Vec::new(),
             DepthOptions {
                 sigma: depth_sigma,
                 weight: depth_weight,
@@ -370,10 +242,14 @@ impl Device {
                     observed: looks.compared(),
                     attributes: None,
                     shading: looks.shading,
-                    depth: looks.depth.as_deref().map(|depth| ObservedDepth {
-                        depth,
-                        loss: looks.depth_loss,
-                    }),
+                    depth: looks
+                        .observation
+                        .depth
+                        .as_deref()
+                        .map(|depth| ObservedDepth {
+                            depth,
+                            loss: looks.depth_loss,
+                        }),
                 };
                 let renderer = parts.registrar(ctx)?.renderer();
                 Scene::new(ctx, &desc)?.evaluate(ctx, renderer)
@@ -433,22 +309,28 @@ impl Device {
             pose: crate::pose(pose, "pose")?,
         };
         let further = views.map(further_views).transpose()?.unwrap_or_default();
-        let others: Vec<OtherView> = further.iter().map(|f| f.other).collect();
-        let looks = Looks::read_views(mask, depth, shading, ignore, camera, &further, &options)?;
         let space = space.get().inner.clone();
         let options = options.for_space(&space);
+        let looks = Looks::read_views(
+            mask,
+            depth,
+            shading,
+            ignore,
+            camera,
+            further,
+            options.depth,
+            options.shading,
+        )?;
         let progress = Progress::new(progress);
         let result = py.detach(|| {
             self.engine.run(|ctx, parts| {
-                let job = options.job(&space, &looks, view, &others)?;
-                let params = options.params(&looks, camera, !others.is_empty())?;
-                let starts = options.starts(view)?;
-                let total = params.total_iterations();
-                parts.registrar(ctx)?.register_starts(
+                let plan = options.plan(&looks, view.pose)?;
+                let total = plan.params.total_iterations();
+                parts.registrar(ctx)?.register_observation(
                     ctx,
-                    job,
-                    register::Starts::for_params(&starts, &params),
-                    &params,
+                    &space,
+                    &looks.observation,
+                    &plan,
                     |done, _| progress.call(done, total),
                 )
             })
@@ -486,48 +368,54 @@ impl Device {
         let depths = depths
             .map(|d| arrays::image(d, "depths", wh, Some(n)))
             .transpose()?;
+        let space = space.get().inner.clone();
+        let options = options.for_space(&space);
         let looks: Vec<Looks> = (0..n)
             .map(|k| {
                 let part = |all: &[f32]| all[k * pixels..(k + 1) * pixels].to_vec();
-                let depth = depths.as_deref().map(part);
-                Looks::assemble(
-                    part(&masks),
-                    depth,
-                    None,
-                    None,
-                    options.depth,
-                    options.shading,
-                )
+                let images = ViewImages {
+                    mask: part(&masks),
+                    depth: depths.as_deref().map(part),
+                    ..Default::default()
+                };
+                Looks::new(camera, images, options.depth, options.shading)
             })
             .collect::<PyResult<_>>()?;
-        let space = space.get().inner.clone();
-        let options = options.for_space(&space);
         let progress = Progress::new(progress);
         let results = py.detach(|| {
             self.engine.run(|ctx, parts| {
                 let registrar = parts.registrar(ctx)?;
-                let params = options.params(&looks[0], camera, false)?;
-                let jobs = looks
+                let plans = looks
                     .iter()
                     .zip(&poses)
-                    .map(|(look, &pose)| options.job(&space, look, View { camera, pose }, &[]))
-                    .collect::<vkdr::Result<Vec<Job>>>()?;
-                let total = params.total_iterations();
-                if options.start_count()? == 1 {
-                    return registrar
-                        .register_batch(ctx, &jobs, &params, |done, _| progress.call(done, total));
+                    .map(|(look, &pose)| options.plan(look, pose))
+                    .collect::<vkdr::Result<Vec<Plan>>>()?;
+                let total = plans[0].params.total_iterations();
+                if plans[0].starts == 1 {
+                    let jobs: Vec<Job> = looks
+                        .iter()
+                        .zip(&plans)
+                        .map(|(look, plan)| Job {
+                            gravity: plan.gravity,
+                            ..look.observation.job(&space, plan.start)
+                        })
+                        .collect();
+                    return registrar.register_batch(ctx, &jobs, &plans[0].params, |done, _| {
+                        progress.call(done, total)
+                    });
                 }
                 // One observation after the other: the iterations of all of them.
-                let all = total * jobs.len();
-                jobs.iter()
+                let all = total * looks.len();
+                looks
+                    .iter()
+                    .zip(&plans)
                     .enumerate()
-                    .map(|(k, job)| {
-                        let starts = options.starts(job.view)?;
-                        registrar.register_starts(
+                    .map(|(k, (look, plan))| {
+                        registrar.register_observation(
                             ctx,
-                            *job,
-                            register::Starts::for_params(&starts, &params),
-                            &params,
+                            &space,
+                            &look.observation,
+                            plan,
                             |done, _| progress.call(k * total + done, all),
                         )
                     })
@@ -542,10 +430,6 @@ impl Device {
     }
 }
 
-/// dL/d(pose numbers) from the engine's pose gradient: dL/dt, and dL/dd for a rotation
-/// increment d on the left (`x_camera = exp([d]x) R x + t`). With R = exp([r]x), a change
-/// dr of the axis-angle moves it by d = J(r) dr, J the left Jacobian of SO(3):
-/// I + (1 - cos a)/a^2 [r]x + (a - sin a)/a^3 [r]x^2, a = |r|; so dL/dr = J^T dL/dd.
 /// An array's elements in order, without a copy where they are its buffer's first ones (a
 /// batch's G-buffer is 157 MB for 32 views of 640 x 480: a copy into fresh memory cost more
 /// than drawing it).
@@ -562,6 +446,10 @@ fn into_vec<A: Clone, D: numpy::ndarray::Dimension>(a: numpy::ndarray::Array<A, 
     a.iter().cloned().collect()
 }
 
+/// dL/d(pose numbers) from the engine's pose gradient: dL/dt, and dL/dd for a rotation
+/// increment d on the left (`x_camera = exp([d]x) R x + t`). With R = exp([r]x), a change
+/// dr of the axis-angle moves it by d = J(r) dr, J the left Jacobian of SO(3):
+/// I + (1 - cos a)/a^2 [r]x + (a - sin a)/a^3 [r]x^2, a = |r|; so dL/dr = J^T dL/dd.
 fn pose_gradient(pose: &vkdr::Pose, g: &[f32; 6]) -> Vec<f64> {
     let r = pose.rotation;
     let a2 = r.length_squared();
@@ -580,459 +468,4 @@ fn pose_gradient(pose: &vkdr::Pose, g: &[f32; 6]) -> Vec<f64> {
     let d = DVec3::new(g[3] as f64, g[4] as f64, g[5] as f64);
     let dr = jacobian.transpose() * d;
     vec![g[0] as f64, g[1] as f64, g[2] as f64, dr.x, dr.y, dr.z]
-}
-
-/// A further camera of `views`, with its images.
-struct FurtherView {
-    other: OtherView,
-    mask: Vec<f32>,
-    depth: Option<Vec<f32>>,
-    shading: Option<Vec<f32>>,
-}
-
-/// The further views from a list of dicts (`K`, `size`, `from_first`, `mask`, and
-/// optionally `depth` and `shading`).
-fn further_views(list: &Bound<'_, PyList>) -> PyResult<Vec<FurtherView>> {
-    list.iter()
-        .enumerate()
-        .map(|(k, item)| {
-            let name = format!("views[{k}]");
-            let dict = item
-                .cast::<PyDict>()
-                .map_err(|_| bad(&name, "expected a dict with K, size, from_first, mask"))?;
-            let get = |key: &str| -> PyResult<Bound<'_, PyAny>> {
-                dict.get_item(key)?
-                    .ok_or_else(|| bad(&name, format!("has no \"{key}\"")))
-            };
-            let size = crate::size(&get("size")?, &format!("{name}[\"size\"]"))?;
-            let camera = crate::camera(&get("K")?, size)?;
-            let from_first = crate::pose(&get("from_first")?, &format!("{name}[\"from_first\"]"))?;
-            let wh = (camera.width, camera.height);
-            let image = |key: &str| -> PyResult<Option<Vec<f32>>> {
-                match dict.get_item(key)? {
-                    None => Ok(None),
-                    Some(v) if v.is_none() => Ok(None),
-                    Some(v) => arrays::image(&v, &format!("{name}[\"{key}\"]"), wh, None).map(Some),
-                }
-            };
-            Ok(FurtherView {
-                other: OtherView { camera, from_first },
-                mask: image("mask")?
-                    .map(|m| {
-                        m.into_iter()
-                            .map(|v| if v > 0.0 { 1.0 } else { 0.0 })
-                            .collect()
-                    })
-                    .ok_or_else(|| bad(&name, "has no \"mask\""))?,
-                depth: image("depth")?,
-                shading: image("shading")?,
-            })
-        })
-        .collect()
-}
-
-/// How the depth is compared, where given (None: the engine's default).
-#[derive(Clone, Copy)]
-struct DepthOptions {
-    sigma: Option<f64>,
-    weight: Option<f64>,
-    occlusion: Option<f64>,
-}
-
-impl DepthOptions {
-    fn loss(&self) -> PyResult<DepthLoss> {
-        let default = DepthLoss::default();
-        let loss = DepthLoss {
-            scale: self.sigma.unwrap_or(default.scale),
-            weight: self.weight.unwrap_or(default.weight),
-            occlusion: self.occlusion.unwrap_or(default.occlusion),
-        };
-        loss.validate()
-            .map_err(|e| bad("depth_sigma, depth_weight or occlusion", e))?;
-        Ok(loss)
-    }
-}
-
-/// The shading model from `light` and `ambient` (None: the engine's default).
-fn shading_model((light, ambient): (Option<[f64; 3]>, Option<f64>)) -> PyResult<Shading> {
-    let default = Shading::default();
-    let shading = Shading {
-        light: light.unwrap_or(default.light),
-        ambient: ambient.unwrap_or(default.ambient),
-    };
-    shading
-        .unit_light()
-        .map_err(|e| bad("light or ambient", e))?;
-    Ok(shading)
-}
-
-/// What is observed, in the engine's layout (`[view][row][column]`): the mask with unknown
-/// pixels marked, and the depth and shading where given.
-struct Looks {
-    mask: Vec<f32>,
-    depth: Option<Vec<f32>>,
-    depth_loss: DepthLoss,
-    shaded: Option<Vec<f32>>,
-    shading: Option<Shading>,
-}
-
-impl Looks {
-    /// One view's images from their arguments.
-    #[allow(clippy::too_many_arguments)]
-    fn read(
-        mask: &Bound<'_, PyAny>,
-        depth: Option<&Bound<'_, PyAny>>,
-        shading: Option<&Bound<'_, PyAny>>,
-        ignore: Option<&Bound<'_, PyAny>>,
-        wh: (u32, u32),
-        views: usize,
-        depth_options: DepthOptions,
-        shading_options: (Option<[f64; 3]>, Option<f64>),
-    ) -> PyResult<Self> {
-        let image = |obj: Option<&Bound<'_, PyAny>>, name: &str| {
-            obj.map(|o| arrays::image(o, name, wh, Some(views)))
-                .transpose()
-        };
-        let mask = arrays::mask(mask, "mask", wh, Some(views))?;
-        let depth = image(depth, "depth")?;
-        let shaded = image(shading, "shading")?;
-        let ignore = image(ignore, "ignore")?;
-        Self::assemble(mask, depth, shaded, ignore, depth_options, shading_options)
-    }
-
-    /// The images of the first view and `further`'s (the ignore mask applies to the first).
-    fn read_views(
-        mask: &Bound<'_, PyAny>,
-        depth: Option<&Bound<'_, PyAny>>,
-        shading: Option<&Bound<'_, PyAny>>,
-        ignore: Option<&Bound<'_, PyAny>>,
-        camera: vkdr::Camera,
-        further: &[FurtherView],
-        options: &Options,
-    ) -> PyResult<Self> {
-        let mut first = Self::read(
-            mask,
-            depth,
-            shading,
-            ignore,
-            (camera.width, camera.height),
-            1,
-            options.depth,
-            options.shading,
-        )?;
-        if further.is_empty() {
-            return Ok(first);
-        }
-        let pixels = first.mask.len();
-        for (k, view) in further.iter().enumerate() {
-            if view.mask.len() != pixels {
-                return Err(bad(
-                    &format!("views[{k}]"),
-                    "every view needs the first view's image size",
-                ));
-            }
-            first.mask.extend(&view.mask);
-            if let Some(all) = first.depth.as_mut() {
-                all.extend(view.depth.clone().unwrap_or_else(|| vec![0.0; pixels]));
-            }
-            if let Some(all) = first.shaded.as_mut() {
-                let shaded = view.shading.as_ref().ok_or_else(|| {
-                    bad(
-                        &format!("views[{k}]"),
-                        "has no \"shading\" (the first view has)",
-                    )
-                })?;
-                all.extend(off_mask_black(shaded, &view.mask));
-            }
-        }
-        Ok(first)
-    }
-
-    /// The observation of images in the engine's layout: the ignore mask marks pixels
-    /// unknown, the shading is background off the mask.
-    fn assemble(
-        mut mask: Vec<f32>,
-        depth: Option<Vec<f32>>,
-        shaded: Option<Vec<f32>>,
-        ignore: Option<Vec<f32>>,
-        depth_options: DepthOptions,
-        shading_options: (Option<[f64; 3]>, Option<f64>),
-    ) -> PyResult<Self> {
-        // Pixels the mask shows as background are background in the shading too.
-        let mut shaded = shaded.map(|s| off_mask_black(&s, &mask));
-        if let Some(ignore) = ignore {
-            // Only pixels the mask does not show as object become unknown: BOP's whole
-            // `mask` works as it is, as with `vkdr register --ignore`.
-            let hidden = loss::hidden_pixels(&mask, &ignore).py()?;
-            loss::mark_unknown(&mut mask, 1, &hidden).py()?;
-            if let Some(shaded) = shaded.as_mut() {
-                loss::mark_unknown(shaded, 1, &hidden).py()?;
-            }
-        }
-        let shading = shaded
-            .is_some()
-            .then(|| shading_model(shading_options))
-            .transpose()?;
-        Ok(Self {
-            mask,
-            depth,
-            depth_loss: depth_options.loss()?,
-            shaded,
-            shading,
-        })
-    }
-
-    /// The image compared: the shading where given, else the mask.
-    fn compared(&self) -> &[f32] {
-        self.shaded.as_deref().unwrap_or(&self.mask)
-    }
-}
-
-/// `shaded` with the pixels `mask` shows as background set to 0 (as `vkdr register` reads
-/// its shading image); unknown pixels stay unknown.
-fn off_mask_black(shaded: &[f32], mask: &[f32]) -> Vec<f32> {
-    shaded
-        .iter()
-        .zip(mask)
-        .map(|(&s, &m)| if m == 0.0 { 0.0 } else { s })
-        .collect()
-}
-
-/// The registration options of `register` and `register_batch`.
-struct Options {
-    optimize_pose: bool,
-    optimize_scale: bool,
-    iterations: Option<usize>,
-    loss: Loss,
-    optimizer: Option<Optimizer>,
-    code_prior: Option<f64>,
-    starts: Option<usize>,
-    /// The object's up axis: as given, else the shape space's ([`Options::for_space`]).
-    up: DVec3,
-    up_given: bool,
-    gravity: Option<GravityOption>,
-    tilt_tolerance: f64,
-    depth: DepthOptions,
-    shading: (Option<[f64; 3]>, Option<f64>),
-}
-
-/// Which way is up in the camera frame.
-enum GravityOption {
-    Direction(DVec3),
-    FromDepth,
-}
-
-impl Options {
-    /// The options from `register`'s keyword arguments; a `TypeError` names one it does
-    /// not know.
-    fn read(kwargs: Option<&Bound<'_, PyDict>>) -> PyResult<Self> {
-        let mut options = Self {
-            optimize_pose: false,
-            optimize_scale: false,
-            iterations: None,
-            loss: Loss::Mse,
-            optimizer: None,
-            code_prior: None,
-            starts: None,
-            up: DVec3::Y,
-            up_given: false,
-            gravity: None,
-            tilt_tolerance: 1.0,
-            depth: DepthOptions {
-                sigma: None,
-                weight: None,
-                occlusion: None,
-            },
-            shading: (None, None),
-        };
-        let Some(kwargs) = kwargs else {
-            return Ok(options);
-        };
-        for (key, value) in kwargs.iter() {
-            let key: String = key.extract()?;
-            let name = key.as_str();
-            let wrong = |what: &str| bad(name, format!("expected {what}, got {value}"));
-            macro_rules! get {
-                ($what:expr) => {
-                    value.extract().map_err(|_| wrong($what))?
-                };
-            }
-            match name {
-                "optimize_pose" => options.optimize_pose = get!("True or False"),
-                "optimize_scale" => options.optimize_scale = get!("True or False"),
-                "iterations" => options.iterations = get!("a count of iterations"),
-                "loss" => {
-                    let text: String = get!("\"mse\", \"iou\" or \"distance\"");
-                    options.loss = text.parse().map_err(|e| bad(name, e))?;
-                }
-                "optimizer" => {
-                    let text: Option<String> = get!("\"bfgs\", \"sgd\" or \"adam\"");
-                    options.optimizer = text
-                        .map(|t| t.parse())
-                        .transpose()
-                        .map_err(|e| bad(name, e))?;
-                }
-                "code_prior" => {
-                    options.code_prior = if value.extract::<String>().is_ok_and(|s| s == "auto") {
-                        None
-                    } else {
-                        let w: f64 = get!("\"auto\" or a weight in [0, 1]");
-                        Some(w)
-                    }
-                }
-                "starts" => options.starts = get!("a count of starts, 1 to 8"),
-                "up" => {
-                    options.up = DVec3::from_array(get!("(x, y, z)"));
-                    options.up_given = true;
-                }
-                "gravity" => {
-                    options.gravity = if value.is_none() {
-                        None
-                    } else if value.extract::<String>().is_ok_and(|s| s == "from-depth") {
-                        Some(GravityOption::FromDepth)
-                    } else {
-                        let d: [f64; 3] = get!("None, (x, y, z) or \"from-depth\"");
-                        Some(GravityOption::Direction(DVec3::from_array(d)))
-                    }
-                }
-                "tilt_tolerance" => options.tilt_tolerance = get!("degrees"),
-                "depth_sigma" => options.depth.sigma = get!("metres"),
-                "depth_weight" => options.depth.weight = get!("a weight"),
-                "occlusion" => options.depth.occlusion = get!("metres"),
-                "light" => options.shading.0 = get!("(x, y, z)"),
-                "ambient" => options.shading.1 = get!("a number in [0, 1)"),
-                other => {
-                    return Err(PyTypeError::new_err(format!(
-                        "register got an unexpected keyword argument '{other}'"
-                    )))
-                }
-            }
-        }
-        if !(options.up.is_finite() && options.up.length() > 0.0) {
-            return Err(bad("up", "must be a nonzero direction (x, y, z)"));
-        }
-        let starts = options.start_count().map_err(crate::py_error)?;
-        if starts > 1 && !options.optimize_pose {
-            return Err(bad(
-                "starts",
-                "turns the starting pose: give optimize_pose=True too",
-            ));
-        }
-        Ok(options)
-    }
-
-    /// The options for registrations of `space`: its category's up axis where `up` was not
-    /// given (y for a space that carries none).
-    fn for_space(self, space: &vkdr::shape::ShapeSpace) -> Self {
-        match self.up_given {
-            true => self,
-            false => Self {
-                up: space.up_or_y().0,
-                ..self
-            },
-        }
-    }
-
-    /// Starts: as given, else [`register::DEFAULT_STARTS`] with the pose free and 1 with
-    /// it known.
-    fn start_count(&self) -> vkdr::Result<usize> {
-        let count = self.starts.unwrap_or(if self.optimize_pose {
-            register::DEFAULT_STARTS
-        } else {
-            1
-        });
-        register::check_starts(count)?;
-        Ok(count)
-    }
-
-    /// The starting poses: `view`'s pose turned about the up axis.
-    fn starts(&self, view: View) -> vkdr::Result<Vec<vkdr::Pose>> {
-        Ok(register::turned_starts(
-            view.pose,
-            self.up,
-            self.start_count()?,
-            register::START_TURN,
-        ))
-    }
-
-    /// The parameters `vkdr register` would use for these observations.
-    fn params(
-        &self,
-        looks: &Looks,
-        camera: vkdr::Camera,
-        several_views: bool,
-    ) -> vkdr::Result<RegisterParams> {
-        let pixels = (camera.width * camera.height) as usize;
-        let base = if self.optimize_pose {
-            RegisterParams::free_pose(pixels)
-        } else {
-            RegisterParams::known_pose(pixels)
-        };
-        let observes_z = looks.depth.is_some() || several_views;
-        let code_prior = match self.code_prior {
-            None => register::observation_prior(pixels),
-            Some(w) if w.is_finite() && (0.0..=1.0).contains(&w) => w,
-            Some(w) => {
-                return Err(vkdr::Error::InvalidInput(format!(
-                    "code_prior: must be \"auto\" or a weight in [0, 1], not {w}"
-                )))
-            }
-        };
-        let params = RegisterParams {
-            iterations: self.iterations.unwrap_or(base.iterations),
-            loss: self.loss,
-            optimizer: self.optimizer.unwrap_or(base.optimizer),
-            shading: looks.shading,
-            depth: looks.depth.is_some().then_some(looks.depth_loss),
-            optimize_z: base.optimize_z || (self.optimize_pose && observes_z),
-            code_prior,
-            optimize_scale: self.optimize_scale,
-            ..base
-        };
-        params.validate()?;
-        Ok(params)
-    }
-
-    /// The job of `looks` seen through `view` (and `others`), with gravity where asked.
-    fn job<'a>(
-        &self,
-        space: &'a vkdr::shape::ShapeSpace,
-        looks: &'a Looks,
-        view: View,
-        others: &'a [OtherView],
-    ) -> vkdr::Result<Job<'a>> {
-        let direction = match &self.gravity {
-            None => None,
-            Some(GravityOption::Direction(d)) => Some(*d),
-            Some(GravityOption::FromDepth) => {
-                let Some(depth) = &looks.depth else {
-                    return Err(vkdr::Error::InvalidInput(
-                        "gravity=\"from-depth\" needs the observed depth".into(),
-                    ));
-                };
-                let n = (view.camera.width * view.camera.height) as usize;
-                let mask: Vec<f32> = looks.mask[..n].iter().map(|&m| m.max(0.0)).collect();
-                let plane =
-                    vkdr::support::fit_support_plane(&view.camera, &depth[..n], &mask, 0.5)?;
-                Some(plane.normal)
-            }
-        };
-        let gravity = direction
-            .map(|direction| {
-                let gravity = Gravity {
-                    up: self.up,
-                    direction,
-                    tolerance: self.tilt_tolerance.to_radians(),
-                };
-                gravity.validate().map(|_| gravity)
-            })
-            .transpose()?;
-        Ok(Job {
-            shaded: looks.shaded.as_deref(),
-            depth: looks.depth.as_deref(),
-            others,
-            gravity,
-            ..Job::new(space, &looks.mask, view)
-        })
-    }
 }

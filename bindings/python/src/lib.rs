@@ -18,6 +18,8 @@ use vkdr::{Camera, Mesh, Pose};
 
 mod arrays;
 mod device;
+mod engine;
+mod options;
 mod space;
 
 use arrays::bad;
@@ -223,12 +225,12 @@ fn size(size: &Bound<'_, PyAny>, name: &str) -> PyResult<(u32, u32)> {
 
 #[pymodule]
 fn _vkdr(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add_class::<device::Device>()?;
+    m.add_class::<engine::Device>()?;
     m.add_class::<space::ShapeSpace>()?;
     m.add_class::<space::Registration>()?;
     m.add_function(wrap_pyfunction!(space::cpd, m)?)?;
     m.add_function(wrap_pyfunction!(space::load_mesh, m)?)?;
-    m.add_function(wrap_pyfunction!(device::default_device, m)?)?;
+    m.add_function(wrap_pyfunction!(engine::default_device, m)?)?;
     m.add("UNKNOWN", vkdr::loss::UNKNOWN)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())

@@ -11,7 +11,7 @@ use vkdr::cpd::CpdParams;
 use vkdr::Mesh;
 
 use crate::arrays::{self, array, bad};
-use crate::device::{engine_of, Device};
+use crate::engine::{engine_of, Device};
 use crate::{OrPy, Progress};
 
 /// Points from an (N, 3) float array.

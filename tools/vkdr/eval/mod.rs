@@ -12,18 +12,15 @@
 //! 20 mm for a 226-vertex bottle) more than its shape. The symmetric chamfer distance of
 //! the vertex sets (the mean of both directions' mean nearest distances) is reported too.
 
-use glam::{DMat3, DVec3};
+use glam::DVec3;
 
 use crate::dataset::Rng;
-use vkdr::camera::{Camera, Pose};
-use vkdr::cpd::CpdParams;
-use vkdr::diff::{DepthLoss, Scene, SceneDesc, Shading};
+use vkdr::camera::Pose;
 use vkdr::error::Result;
 use vkdr::gpu::Context;
-use vkdr::loss::Loss;
 use vkdr::mesh::{centroid, Mesh};
-use vkdr::raster::{Outputs, View};
-use vkdr::register::{turned_starts, Gravity, Job, OtherView, RegisterParams, Registrar};
+use vkdr::raster::View;
+use vkdr::register::{Gravity, Job, Plan, RegisterParams, Registrar};
 use vkdr::shape::ShapeSpace;
 
 pub use crate::metrics::{
@@ -31,6 +28,12 @@ pub use crate::metrics::{
     symmetric_rotation_error,
 };
 pub use crate::reference::{space_optimum, surface_sample, Optimum, Reference, SAMPLE_POINTS};
+
+mod scene;
+mod settings;
+
+pub use scene::*;
+pub use settings::*;
 
 /// Mean over `a` of the distance to the nearest point of `b`.
 pub fn mean_nearest(a: &[DVec3], b: &[DVec3]) -> f64 {
@@ -46,319 +49,6 @@ pub fn mean_nearest(a: &[DVec3], b: &[DVec3]) -> f64 {
 /// Symmetric chamfer distance: the mean of both directions' mean nearest distances.
 pub fn chamfer(a: &[DVec3], b: &[DVec3]) -> f64 {
     0.5 * (mean_nearest(a, b) + mean_nearest(b, a))
-}
-
-/// The evaluation's camera and trial settings.
-#[derive(Clone, Debug)]
-pub struct EvalSettings {
-    pub camera: Camera,
-    /// Camera-to-object distance, metres.
-    pub distance: f64,
-    pub trials: usize,
-    pub seed: u64,
-    /// Elevation of the views above the horizon, radians (drawn uniformly).
-    pub elevation: (f64, f64),
-    /// Pose noise: uniform +-translation (x, y) and +-rotation about each axis.
-    pub translation_noise: f64,
-    pub rotation_noise: f64,
-    pub known_pose: RegisterParams,
-    pub pose_noise: RegisterParams,
-    pub dims: usize,
-    pub cpd: CpdParams,
-    /// Also register each trial with the pose optimised as with pose noise but starting
-    /// at the true pose (no alignment): how far the silhouette's own optimum lies from the
-    /// truth, apart from the start.
-    pub from_truth: bool,
-    /// Observe and compare Lambert shading (besides the mask, which the pose alignment
-    /// compares); overrides the registration parameters' own.
-    pub shading: Option<Shading>,
-    /// The dataset's up axis (its `info.json`, [`crate::check::Info`]): views are drawn
-    /// from the hemisphere it points into.
-    pub up: DVec3,
-    /// Observe depth too (the test instance's rendered depth), compared with this loss;
-    /// the pose's z translation is then optimised with pose noise.
-    pub depth: Option<DepthLoss>,
-    /// Standard deviation (metres) of Gaussian noise added to every measured depth.
-    pub depth_noise: f64,
-    /// Cameras per trial: the first as with one view, the others at the same distance and
-    /// elevation (or their own, [`EvalSettings::own_elevations`]), at seeded azimuths at
-    /// least [`MIN_VIEW_SEPARATION`] from every other view's, their poses relative to the
-    /// first known. With more than one the z translation is optimised with pose noise.
-    pub views: usize,
-    /// Draw each view after the first its own elevation from [`EvalSettings::elevation`]
-    /// (a head and a wrist camera) instead of sharing the first's.
-    pub own_elevations: bool,
-    /// Keep z at its true value even where depth or a second view observe it (as with one
-    /// mask, where the distance is given): separates what the observation tells from what
-    /// the free distance costs.
-    pub fix_z: bool,
-    /// Starts per trial with pose noise: the noisy start and the starts turned about the
-    /// object's up axis by multiples of the rotation noise
-    /// ([`vkdr::register::turned_starts`]); the noisy start is registered and the others'
-    /// turns are tried on its fit, by the loss (what the images tell, not the error)
-    /// (`Registrar::register_with_turns`); the milliseconds are the wall time and the
-    /// iterations count every evaluation.
-    pub starts: usize,
-    /// A real frame's ways, rendered into each trial's first view: a box in front of the
-    /// object's left half (the mask shows the visible part; with depth the box's depth is
-    /// measured, without it the box's pixels are unknown), ...
-    pub occluder: bool,
-    /// ... the table the object stands on (in the depth only: a plane under the test
-    /// instance's lowest point, normal to the up axis), ...
-    pub table: bool,
-    /// ... holes in the depth (this fraction of the pixels, in clusters of a few pixels'
-    /// radius), ...
-    pub depth_holes: f64,
-    /// ... and a test instance of another size than the training set's (each test mesh
-    /// scaled by this about its origin).
-    pub test_scale: f64,
-    /// Which way is up with pose noise: the true pose's up axis (a known table or IMU), or
-    /// the support plane fitted in the observed depth (needs `table`); None: not used.
-    pub gravity: Option<GravitySource>,
-    /// Radians of tilt from up that cost nothing ([`Gravity::tolerance`]).
-    pub tilt_tolerance: f64,
-    /// Where gravity from the depth finds no support plane: register without gravity
-    /// (true; the trial says so) or fail the unit (false).
-    pub gravity_fallback: bool,
-}
-
-/// Where [`EvalSettings::gravity`] comes from.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum GravitySource {
-    /// The true up direction (a robot's table plane or IMU).
-    Known,
-    /// The support plane fitted in the observed depth ([`vkdr::support`]).
-    FromDepth,
-}
-
-/// Azimuth and elevation (radians) of each camera of one trial: the first at a random
-/// azimuth and elevation, the others at [`view_offsets`] from it, at its elevation or
-/// (with [`EvalSettings::own_elevations`]) each at its own, drawn after the offsets so that
-/// shared-elevation trials keep their random stream.
-fn trial_cameras(rng: &mut Rng, settings: &EvalSettings) -> Vec<(f64, f64)> {
-    let azimuth = rng.range(0.0, std::f64::consts::TAU);
-    let elevation = rng.range(settings.elevation.0, settings.elevation.1);
-    let offsets = view_offsets(rng, settings.views);
-    let mut cameras = vec![(azimuth, elevation)];
-    for offset in offsets {
-        let own = match settings.own_elevations {
-            true => rng.range(settings.elevation.0, settings.elevation.1),
-            false => elevation,
-        };
-        cameras.push((azimuth + offset, own));
-    }
-    cameras
-}
-
-/// The least azimuth between two views of one trial, radians (60 degrees).
-pub const MIN_VIEW_SEPARATION: f64 = std::f64::consts::PI / 3.0;
-
-impl EvalSettings {
-    /// The registrations' parameters with the pose known, with what the trials observe.
-    pub fn known_pose_params(&self) -> RegisterParams {
-        RegisterParams {
-            shading: self.shading,
-            depth: self.depth,
-            ..self.known_pose
-        }
-    }
-
-    /// The registrations' parameters with pose noise, with what the trials observe: depth
-    /// or a second view observe the distance, so z is optimised too (unless `fix_z`).
-    pub fn pose_noise_params(&self) -> RegisterParams {
-        let observes_z = (self.depth.is_some() || self.views > 1) && !self.fix_z;
-        RegisterParams {
-            shading: self.shading,
-            depth: self.depth,
-            optimize_z: self.pose_noise.optimize_z || observes_z,
-            ..self.pose_noise
-        }
-    }
-
-    /// What each trial observes, in words (the table states it).
-    pub fn observation(&self) -> String {
-        let mut parts = vec![if self.shading.is_some() {
-            "mask and shading"
-        } else {
-            "mask"
-        }
-        .to_string()];
-        if self.depth.is_some() {
-            parts.push(if self.depth_noise > 0.0 {
-                format!("depth (noise {:.1} mm)", 1e3 * self.depth_noise)
-            } else {
-                "depth (noise-free)".into()
-            });
-        }
-        let views = if self.views > 1 {
-            format!(
-                "{} views (azimuths at least 60 degrees apart, {}, relative poses known)",
-                self.views,
-                if self.own_elevations {
-                    "elevations drawn per view"
-                } else {
-                    "a shared elevation"
-                }
-            )
-        } else {
-            "one view".into()
-        };
-        let z = if self.fix_z && (self.depth.is_some() || self.views > 1) {
-            "; the distance (z) known"
-        } else {
-            ""
-        };
-        if self.depth.is_some() && self.depth_holes > 0.0 {
-            parts.push(format!(
-                "{:.0}% of the depth missing in clusters",
-                100.0 * self.depth_holes
-            ));
-        }
-        if self.table {
-            parts.push("the table under the object in the depth".into());
-        }
-        if self.occluder {
-            parts.push(if self.depth.is_some() {
-                "a box in front of the object's left half (occlusion found from the depth)".into()
-            } else {
-                "a box in front of the object's left half (its pixels unknown)".into()
-            });
-        }
-        if self.test_scale != 1.0 {
-            parts.push(format!("test instances scaled by {}", self.test_scale));
-        }
-        let gravity = match self.gravity {
-            None => String::new(),
-            Some(source) => format!(
-                "; up known{} within {:.1} deg with pose noise",
-                match source {
-                    GravitySource::Known => "",
-                    GravitySource::FromDepth => " from the table fitted in the depth",
-                },
-                self.tilt_tolerance.to_degrees()
-            ),
-        };
-        format!("{}; {views}{z}{gravity}", parts.join(", "))
-    }
-}
-
-/// Azimuth offsets (radians) of the views after the first, every two views at least
-/// [`MIN_VIEW_SEPARATION`] apart. Up to four views, each is drawn uniformly until it lies
-/// far enough from every view before it (three views always leave a gap of 120 degrees,
-/// so this ends). Five or six views may not fit after random draws (four at 90 degrees
-/// leave no room): there the gaps between neighbours are the separation plus a uniform
-/// share of the rest of the circle.
-fn view_offsets(rng: &mut Rng, views: usize) -> Vec<f64> {
-    let tau = std::f64::consts::TAU;
-    if views > 4 {
-        let mut cuts: Vec<f64> = (1..views).map(|_| rng.uniform()).collect();
-        cuts.sort_by(f64::total_cmp);
-        let slack = tau - views as f64 * MIN_VIEW_SEPARATION;
-        let mut at = 0.0;
-        let mut previous = 0.0;
-        return cuts
-            .iter()
-            .map(|&cut| {
-                at += MIN_VIEW_SEPARATION + slack * (cut - previous);
-                previous = cut;
-                at
-            })
-            .collect();
-    }
-    let apart = |a: f64, b: f64| {
-        let d = (a - b).rem_euclid(tau);
-        d.min(tau - d) >= MIN_VIEW_SEPARATION - 1e-12
-    };
-    let mut offsets = vec![0.0];
-    while offsets.len() < views {
-        let candidate = rng.range(0.0, tau);
-        if offsets.iter().all(|&o| apart(o, candidate)) {
-            offsets.push(candidate);
-        }
-    }
-    offsets.split_off(1)
-}
-
-/// A standard normal draw (Box-Muller).
-fn gaussian(rng: &mut Rng) -> f64 {
-    let u = rng.uniform().max(f64::MIN_POSITIVE);
-    (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * rng.uniform()).cos()
-}
-
-impl Default for EvalSettings {
-    fn default() -> Self {
-        Self {
-            camera: Camera::new(500.0, 500.0, 160.0, 120.0, 320, 240).expect("valid camera"),
-            distance: 0.7,
-            trials: 10,
-            seed: 0,
-            elevation: (10f64.to_radians(), 60f64.to_radians()),
-            translation_noise: 0.05,
-            rotation_noise: vkdr::register::START_TURN,
-            known_pose: RegisterParams::known_pose(320 * 240),
-            pose_noise: RegisterParams::free_pose(320 * 240),
-            dims: 5,
-            from_truth: false,
-            shading: None,
-            cpd: CpdParams::default(),
-            up: DVec3::Y,
-            depth: None,
-            depth_noise: 0.0,
-            views: 1,
-            own_elevations: false,
-            fix_z: false,
-            starts: vkdr::register::DEFAULT_STARTS,
-            occluder: false,
-            table: false,
-            depth_holes: 0.0,
-            test_scale: 1.0,
-            gravity: None,
-            tilt_tolerance: 1f64.to_radians(),
-            gravity_fallback: true,
-        }
-    }
-}
-
-/// The object-to-camera pose looking at the object (y up) from azimuth `azimuth` and
-/// elevation `elevation` at `distance`.
-pub fn view_pose(azimuth: f64, elevation: f64, distance: f64) -> Pose {
-    // Object y up to image up (camera -y), then the azimuth about the object's up axis,
-    // then tilt so the camera looks down from `elevation`: the object's up axis leans
-    // towards the camera (up to 2026-11 the tilt went the other way, and every view looked
-    // up from below the horizon; `tests` now checks the side).
-    let r = DMat3::from_rotation_x(elevation)
-        * DMat3::from_rotation_x(std::f64::consts::PI)
-        * DMat3::from_rotation_y(azimuth);
-    Pose {
-        translation: DVec3::new(0.0, 0.0, distance),
-        rotation: glam::DQuat::from_mat3(&r).to_scaled_axis(),
-    }
-}
-
-/// [`view_pose`] for an object whose up axis is `up` (any unit vector): the camera looks
-/// down from `elevation` above the plane normal to `up`.
-pub fn view_pose_up(up: DVec3, azimuth: f64, elevation: f64, distance: f64) -> Pose {
-    let pose = view_pose(azimuth, elevation, distance);
-    let to_y_up = glam::DQuat::from_rotation_arc(up.normalize(), DVec3::Y);
-    Pose {
-        translation: pose.translation,
-        rotation: (glam::DQuat::from_scaled_axis(pose.rotation) * to_y_up).to_scaled_axis(),
-    }
-}
-
-/// `pose` disturbed by uniform noise: +-`translation` in camera x and y, and a rotation of
-/// +-`rotation` about each camera axis applied on the left.
-pub fn noisy_pose(pose: Pose, rng: &mut Rng, translation: f64, rotation: f64) -> Pose {
-    let mut noise = |a: f64| rng.range(-a, a);
-    let dt = DVec3::new(noise(translation), noise(translation), 0.0);
-    let dr = DVec3::new(noise(rotation), noise(rotation), noise(rotation));
-    Pose {
-        translation: pose.translation + dt,
-        rotation: glam::DQuat::from_mat3(
-            &(DMat3::from_euler(glam::EulerRot::XYZ, dr.x, dr.y, dr.z) * pose.rotation_matrix()),
-        )
-        .to_scaled_axis(),
-    }
 }
 
 /// Mean and (sample) standard deviation.
@@ -496,226 +186,6 @@ pub struct Trial {
     pub iou: f64,
 }
 
-/// Angle (radians, 0 to pi/2) between the line of sight from the camera to the object's
-/// origin through `pose` and the object-frame `axis` (either way along it).
-pub fn line_of_sight_angle(pose: Pose, axis: DVec3) -> f64 {
-    let sight = pose.rotation_matrix().transpose() * pose.translation.normalize();
-    sight.dot(axis.normalize()).abs().min(1.0).acos()
-}
-
-/// The object-frame unit axes of `mesh`'s bounding box, longest extent first.
-pub fn extent_axes(mesh: &Mesh) -> [DVec3; 3] {
-    let (lo, hi) = mesh.bounds();
-    let mut order = [0, 1, 2];
-    order.sort_by(|&a, &b| (hi[b] - lo[b]).total_cmp(&(hi[a] - lo[a])));
-    order.map(|k| DVec3::from_array(std::array::from_fn(|j| if j == k { 1.0 } else { 0.0 })))
-}
-
-/// The mask of `mesh` rendered through `view`.
-pub fn render_mask(
-    ctx: &Context,
-    registrar: &Registrar,
-    mesh: &Mesh,
-    view: View,
-) -> Result<Vec<f32>> {
-    let g = registrar
-        .renderer()
-        .rasterizer()
-        .render(ctx, mesh, &[view], Outputs::Ids)?;
-    Ok(g.ids
-        .iter()
-        .map(|&id| if id > 0 { 1.0 } else { 0.0 })
-        .collect())
-}
-
-/// A square plane 0.6 m across (both sides), normal to `up`, half a millimetre below the
-/// lowest point of `test` along it: the table it stands on.
-pub fn table_under(test: &Mesh, up: DVec3) -> Result<Mesh> {
-    let up = up.normalize();
-    let lowest = test
-        .points()
-        .iter()
-        .map(|p| p.dot(up))
-        .fold(f64::INFINITY, f64::min);
-    let a = up.any_orthonormal_vector();
-    let b = up.cross(a);
-    let centre = up * (lowest - 5e-4);
-    let corners: Vec<[f32; 3]> = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)]
-        .iter()
-        .map(|&(u, v)| (centre + 0.3 * (u * a + v * b)).as_vec3().to_array())
-        .collect();
-    Mesh::new(corners, vec![[0, 1, 2], [0, 2, 3], [0, 2, 1], [0, 3, 2]])
-}
-
-/// A rectangle facing the camera (both sides, camera coordinates) in front of the left
-/// half of the mask's box (`[row][column]` of `camera`'s size), 5 cm nearer than `near`
-/// (the nearest depth of the object) and a little taller than the box: an occluder that
-/// hides about half the object. None for an empty mask.
-pub fn occluder_before(camera: &Camera, mask: &[f32], near: f64) -> Result<Option<Mesh>> {
-    let w = camera.width as usize;
-    let covered: Vec<usize> = (0..mask.len()).filter(|&i| mask[i] > 0.0).collect();
-    if covered.is_empty() {
-        return Ok(None);
-    }
-    let xs = covered.iter().map(|&i| (i % w) as f64);
-    let ys = covered.iter().map(|&i| (i / w) as f64);
-    let (x0, x1) = (
-        xs.clone().fold(f64::INFINITY, f64::min),
-        xs.fold(0.0, f64::max) + 1.0,
-    );
-    let (y0, y1) = (
-        ys.clone().fold(f64::INFINITY, f64::min),
-        ys.fold(0.0, f64::max) + 1.0,
-    );
-    let z = (near - 0.05).max(2.0 * camera.near);
-    let margin = 0.1 * (y1 - y0);
-    let corner = |u: f64, v: f64| {
-        [
-            ((u - camera.cx) * z / camera.fx) as f32,
-            ((v - camera.cy) * z / camera.fy) as f32,
-            z as f32,
-        ]
-    };
-    let middle = 0.5 * (x0 + x1);
-    let (left, top, bottom) = (x0 - 4.0 * margin, y0 - margin, y1 + margin);
-    let corners = vec![
-        corner(left, top),
-        corner(middle, top),
-        corner(middle, bottom),
-        corner(left, bottom),
-    ];
-    Ok(Some(Mesh::new(
-        corners,
-        vec![[0, 1, 2], [0, 2, 3], [0, 2, 1], [0, 3, 2]],
-    )?))
-}
-
-/// Puts `other` (an observation of one view with depth: mask and depth of another
-/// surface) into the first view of `observed` (with depth), nearest surface first: where
-/// it lies in front of the object the object is hidden (mask 0, or unknown where
-/// `unknown`), and its depth is measured wherever it is the nearest surface.
-pub fn put_in_front(observed: &mut Observation, other: &Observation, unknown: bool) {
-    let (Some(depth), Some(other_depth)) = (observed.depth.as_mut(), other.depth.as_ref()) else {
-        return;
-    };
-    for i in 0..other.mask.len() {
-        let z = other_depth[i];
-        if other.mask[i] <= 0.0 || !(depth[i] == 0.0 || z < depth[i]) {
-            continue;
-        }
-        depth[i] = z;
-        let hidden = if unknown { vkdr::loss::UNKNOWN } else { 0.0 };
-        if unknown || observed.mask[i] > 0.0 {
-            observed.mask[i] = hidden;
-            if let Some(shaded) = observed.shaded.as_mut() {
-                shaded[i] = hidden;
-            }
-        }
-    }
-}
-
-/// Removes about `fraction` of the measured depth of one view (`width` wide) in clusters:
-/// discs of 2 to 6 pixels' radius at random centres, as a sensor loses dark, shiny or
-/// grazing surfaces.
-pub fn cluster_holes(depth: &mut [f32], width: usize, fraction: f64, rng: &mut Rng) {
-    let height = depth.len() / width.max(1);
-    let target = (fraction * depth.len() as f64) as usize;
-    let mut removed = 0;
-    let mut attempts = 0;
-    while removed < target && attempts < 100 * depth.len() {
-        attempts += 1;
-        let (cx, cy) = (rng.range(0.0, width as f64), rng.range(0.0, height as f64));
-        let r = rng.range(2.0, 6.0);
-        let (x0, x1) = (
-            (cx - r).max(0.0) as usize,
-            ((cx + r) as usize).min(width - 1),
-        );
-        let (y0, y1) = (
-            (cy - r).max(0.0) as usize,
-            ((cy + r) as usize).min(height - 1),
-        );
-        for y in y0..=y1 {
-            for x in x0..=x1 {
-                let (dx, dy) = (x as f64 + 0.5 - cx, y as f64 + 0.5 - cy);
-                let i = y * width + x;
-                if dx * dx + dy * dy <= r * r && depth[i] > 0.0 {
-                    depth[i] = 0.0;
-                    removed += 1;
-                }
-            }
-        }
-    }
-}
-
-/// What cameras at `views` observe of `mesh`, each image `[view][row][column]`.
-#[derive(Clone)]
-pub struct Observation {
-    /// The mask: 1 where the mesh covers the pixel centre, else 0.
-    pub mask: Vec<f32>,
-    /// Camera-space depth where covered, 0 elsewhere (no measurement), if asked for.
-    pub depth: Option<Vec<f32>>,
-    /// The Lambert shading ([`render_shading`]), if asked for.
-    pub shaded: Option<Vec<f32>>,
-}
-
-/// Renders what cameras at `views` observe of `mesh`: its mask, and its depth and shading
-/// where asked for (the test instance's observation in `eval`, `register --observed-mesh`
-/// and `bench-register`).
-pub fn observe(
-    ctx: &Context,
-    registrar: &Registrar,
-    mesh: &Mesh,
-    views: &[View],
-    depth: bool,
-    shading: Option<Shading>,
-) -> Result<Observation> {
-    let outputs = if depth {
-        Outputs::IdsBaryDepth
-    } else {
-        Outputs::Ids
-    };
-    let g = registrar
-        .renderer()
-        .rasterizer()
-        .render(ctx, mesh, views, outputs)?;
-    Ok(Observation {
-        mask: g.ids.iter().map(|&id| (id > 0) as u32 as f32).collect(),
-        depth: g.depth.map(|d| d.iter().copied().collect()),
-        shaded: shading
-            .map(|s| render_shading(ctx, registrar, mesh, views, s))
-            .transpose()?,
-    })
-}
-
-/// The Lambert shading of `mesh` rendered through `views` (`[view][row][column]`, background
-/// 0, antialiased as the registration renders its own).
-pub fn render_shading(
-    ctx: &Context,
-    registrar: &Registrar,
-    mesh: &Mesh,
-    views: &[View],
-    shading: Shading,
-) -> Result<Vec<f32>> {
-    let pixels: usize = views
-        .iter()
-        .map(|v| v.camera.width as usize * v.camera.height as usize)
-        .sum();
-    let mut scene = Scene::new(
-        ctx,
-        &SceneDesc {
-            loss_pixels: None,
-            mesh,
-            views,
-            loss: Loss::Mse,
-            observed: &vec![0.0; pixels],
-            attributes: None,
-            shading: Some(shading),
-            depth: None,
-        },
-    )?;
-    Ok(scene.evaluate(ctx, registrar.renderer())?.antialiased)
-}
-
 /// The mean distance from `SAMPLE_POINTS` points sampled uniformly on the surface of
 /// `vertices` (over `triangles`) to the surface of `test`: the direction the reported error
 /// does not look in, which sees parts the registered shape has and the test instance has
@@ -755,132 +225,6 @@ pub fn as_seen(vertices: &[DVec3], registered: Pose, pose: Pose) -> Vec<DVec3> {
         .iter()
         .map(|&v| back.apply(registered.apply(v)))
         .collect()
-}
-
-/// One trial's scene: the view (the true pose), further cameras and what they observe.
-#[derive(Clone)]
-pub struct TrialScene {
-    /// The first camera's azimuth and elevation about the object, radians.
-    pub azimuth: f64,
-    pub elevation: f64,
-    /// The true object-to-camera pose (the first view's).
-    pub pose: Pose,
-    pub view: View,
-    pub others: Vec<OtherView>,
-    pub observed: Observation,
-}
-
-/// Where [`evaluate_instance`]'s trials come from.
-#[derive(Clone, Copy)]
-pub enum TrialSource<'a> {
-    /// Rendered from the test instance at random views, with the settings' real frames'
-    /// ways (occluder, table, depth noise and holes).
-    Rendered,
-    /// One observed frame (its true pose given), the same in every trial: the trials differ
-    /// in their pose noise; the registration with the pose known runs once. The model's
-    /// [`Reference`] is computed once for every frame that shows it.
-    Frame {
-        scene: &'a TrialScene,
-        reference: &'a Reference,
-    },
-}
-
-/// A rendered trial: random views of `test` (and `table` under it) with the settings'
-/// occluder, depth noise and holes.
-pub fn render_trial(
-    ctx: &Context,
-    registrar: &Registrar,
-    test: &Mesh,
-    table: Option<&Mesh>,
-    settings: &EvalSettings,
-    rng: &mut Rng,
-) -> Result<TrialScene> {
-    let cameras = trial_cameras(rng, settings);
-    let (azimuth, elevation) = cameras[0];
-    let pose = view_pose_up(settings.up, azimuth, elevation, settings.distance);
-    let view = View {
-        camera: settings.camera,
-        pose,
-    };
-    let others: Vec<OtherView> = cameras[1..]
-        .iter()
-        .map(|&(azimuth, elevation)| {
-            let other = view_pose_up(settings.up, azimuth, elevation, settings.distance);
-            OtherView {
-                camera: settings.camera,
-                from_first: pose.inverse().followed_by(&other),
-            }
-        })
-        .collect();
-    let views = vkdr::register::all_views(view, &others);
-    let with_surroundings = settings.occluder || settings.table;
-    let mut observed = observe(
-        ctx,
-        registrar,
-        test,
-        &views,
-        settings.depth.is_some() || with_surroundings,
-        settings.shading,
-    )?;
-    let n = (settings.camera.width * settings.camera.height) as usize;
-    if let Some(table) = table {
-        let seen = observe(ctx, registrar, table, &[view], true, None)?;
-        put_in_front(&mut observed, &seen, false);
-    }
-    if settings.occluder {
-        let near = observed.depth.as_ref().map_or(settings.distance, |d| {
-            d[..n]
-                .iter()
-                .zip(&observed.mask)
-                .filter(|&(&z, &m)| m > 0.0 && z > 0.0)
-                .map(|(&z, _)| z as f64)
-                .fold(f64::INFINITY, f64::min)
-        });
-        if let Some(occluder) = occluder_before(&settings.camera, &observed.mask[..n], near)? {
-            let camera_frame = View {
-                camera: settings.camera,
-                pose: Pose::at([0.0; 3]),
-            };
-            let seen = observe(ctx, registrar, &occluder, &[camera_frame], true, None)?;
-            put_in_front(&mut observed, &seen, settings.depth.is_none());
-        }
-    }
-    if settings.depth.is_none() {
-        observed.depth = None;
-    }
-    let (mask, shaded) = (observed.mask, observed.shaded);
-    let depth: Option<Vec<f32>> = observed.depth.map(|depth| {
-        let mut depth: Vec<f32> = depth
-            .iter()
-            .map(|&z| {
-                if z > 0.0 && settings.depth_noise > 0.0 {
-                    // A measurement stays a measurement (> 0).
-                    (z as f64 + settings.depth_noise * gaussian(rng)).max(1e-4) as f32
-                } else {
-                    z
-                }
-            })
-            .collect();
-        if settings.depth_holes > 0.0 {
-            for view in depth.chunks_mut(n) {
-                let width = settings.camera.width as usize;
-                cluster_holes(view, width, settings.depth_holes, rng);
-            }
-        }
-        depth
-    });
-    Ok(TrialScene {
-        azimuth,
-        elevation,
-        pose,
-        view,
-        others,
-        observed: Observation {
-            mask,
-            depth,
-            shaded,
-        },
-    })
 }
 
 /// Evaluates one test instance against a built shape space.
@@ -980,20 +324,35 @@ pub fn evaluate_instance(
             }
             TrialSource::Frame { scene, .. } => scene.clone(),
         };
-        let n = (view.camera.width * view.camera.height) as usize;
-        let (mask, shaded, depth) = (observed.mask, observed.shaded, observed.depth);
+        let observation = vkdr::Observation {
+            camera: view.camera,
+            others,
+            mask: observed.mask,
+            depth: observed.depth,
+            shaded: observed.shaded,
+        };
         let true_up = pose.rotation_matrix() * settings.up;
-        let visible: Vec<f32> = mask[..n].iter().map(|&m| m.max(0.0)).collect();
+        let visible: Vec<f32> = observation
+            .first_mask()
+            .iter()
+            .map(|&m| m.max(0.0))
+            .collect();
         let mut gravity_fallback = false;
         let gravity = match settings.gravity {
             None => None,
-            Some(GravitySource::Known) => Some(true_up),
+            Some(GravitySource::Known) => Some(Gravity {
+                up: settings.up,
+                direction: true_up,
+                tolerance: settings.tilt_tolerance,
+            }),
             Some(GravitySource::FromDepth) => {
-                let depth = depth.as_deref().ok_or_else(|| {
-                    vkdr::Error::InvalidInput("gravity from the depth needs depth".into())
-                })?;
-                match vkdr::support::fit_support_plane(&view.camera, &depth[..n], &visible, 0.5) {
-                    Ok(plane) => Some(plane.normal),
+                if observation.depth.is_none() {
+                    return Err(vkdr::Error::InvalidInput(
+                        "gravity from the depth needs depth".into(),
+                    ));
+                }
+                match Gravity::from_depth(&observation, settings.up, settings.tilt_tolerance) {
+                    Ok((gravity, _)) => Some(gravity),
                     Err(_) if settings.gravity_fallback => {
                         gravity_fallback = true;
                         None
@@ -1001,18 +360,10 @@ pub fn evaluate_instance(
                     Err(e) => return Err(e),
                 }
             }
-        }
-        .map(|direction| Gravity {
-            up: settings.up,
-            direction,
-            tolerance: settings.tilt_tolerance,
-        });
-        let job = |view| Job {
-            shaded: shaded.as_deref(),
-            depth: depth.as_deref(),
-            others: &others,
+        };
+        let job = |view: View| Job {
             gravity,
-            ..Job::new(space, &mask, view)
+            ..observation.job(space, view.pose)
         };
 
         // A frame is the same in every trial: its registration with the pose known once.
@@ -1052,19 +403,14 @@ pub fn evaluate_instance(
             settings.translation_noise,
             settings.rotation_noise,
         );
-        // The noisy start and it turned about the up axis (Registrar::register_starts).
-        let starts = turned_starts(start, settings.up, settings.starts, settings.rotation_noise);
-        let first = job(View {
-            camera: view.camera,
-            pose: start,
-        });
-        let result = registrar.register_starts(
-            ctx,
-            first,
-            vkdr::register::Starts::for_params(&starts, &pose_noise),
-            &pose_noise,
-            |_, _| {},
-        )?;
+        // The noisy start and it turned about the up axis by the rotation noise.
+        let plan = Plan {
+            starts: settings.starts,
+            turn: settings.rotation_noise,
+            gravity,
+            ..Plan::new(start, settings.up, pose_noise)
+        };
+        let result = registrar.register_observation(ctx, space, &observation, &plan, |_, _| {})?;
         let (rotation_error, translation_error) = pose_error(result.pose, pose);
         let rotation_error_symmetric = if symmetric {
             symmetric_rotation_error(result.pose, pose, settings.up)
@@ -1081,7 +427,7 @@ pub fn evaluate_instance(
                 pose,
                 &view.camera,
                 &visible,
-                depth.as_deref().map(|d| &d[..n]),
+                observation.first_depth(),
             ) < 0.1;
         let triangles = space.canonical.triangles();
         let iou = crate::metrics::iou(
@@ -1230,7 +576,9 @@ fn hash(s: &str) -> u64 {
 
 #[cfg(test)]
 mod tests {
+    use super::settings::trial_cameras;
     use super::*;
+    use glam::DMat3;
 
     /// Further views share the first's elevation unless told to draw their own, which stay
     /// in the elevation range, differ from it, and leave the first camera and the azimuths
