@@ -50,7 +50,7 @@ pub use starts::{
     check_starts, start_turns, symmetry_pivot, turned_starts, Starts, DEFAULT_STARTS, MAX_STARTS,
     START_TURN, TURN_GAIN, TURN_ITERATIONS,
 };
-use task::{Staged, Task};
+use task::{Stage, Staged, Task};
 
 pub use optimizer::Optimizer;
 use optimizer::{OptimizerConstants, Optimizers, StateLayout};
@@ -345,7 +345,18 @@ impl Registrar {
             .collect();
         let jobs = &levelled[..];
         if !aligning {
-            let runs = self.run(ctx, jobs, params, false, None, started, 0, &mut on_chunk)?;
+            let runs = self.run(
+                ctx,
+                jobs,
+                Stage {
+                    params,
+                    pose_only: false,
+                    codes: None,
+                    started,
+                    first: 0,
+                },
+                &mut on_chunk,
+            )?;
             return Ok(runs.into_iter().map(|s| s.result).collect());
         }
         let align = RegisterParams {
@@ -359,7 +370,18 @@ impl Registrar {
             ..*params
         };
         let mut aligned: Vec<Registration> = self
-            .run(ctx, jobs, &align, true, None, started, 0, &mut on_chunk)?
+            .run(
+                ctx,
+                jobs,
+                Stage {
+                    params: &align,
+                    pose_only: true,
+                    codes: None,
+                    started,
+                    first: 0,
+                },
+                &mut on_chunk,
+            )?
             .into_iter()
             .map(|s| Registration {
                 stages: vec![(STAGE_ALIGN, s.result.losses.len())],
@@ -380,11 +402,13 @@ impl Registrar {
             let reached = self.run(
                 ctx,
                 &jobs,
-                &reach,
-                pose_only,
-                None,
-                started,
-                done,
+                Stage {
+                    params: &reach,
+                    pose_only,
+                    codes: None,
+                    started,
+                    first: done,
+                },
                 &mut on_chunk,
             )?;
             done += reach.iterations;
@@ -405,11 +429,13 @@ impl Registrar {
         let mut refined = self.run(
             ctx,
             &jobs,
-            params,
-            false,
-            codes.as_deref(),
-            started,
-            done,
+            Stage {
+                params,
+                pose_only: false,
+                codes: codes.as_deref(),
+                started,
+                first: done,
+            },
             &mut on_chunk,
         )?;
         if turns.len() > 1 {
@@ -480,11 +506,13 @@ impl Registrar {
         let scored = self.run(
             ctx,
             &turned,
-            &score,
-            true,
-            Some(&codes),
-            started,
-            0,
+            Stage {
+                params: &score,
+                pose_only: true,
+                codes: Some(&codes),
+                started,
+                first: 0,
+            },
             &mut |_, _| {},
         )?;
         let loss = |s: &Staged| s.result.losses.first().copied().unwrap_or(f64::INFINITY);
@@ -504,11 +532,13 @@ impl Registrar {
             .run(
                 ctx,
                 &turned[best..best + 1],
-                params,
-                false,
-                Some(&codes[..1]),
-                started,
-                0,
+                Stage {
+                    params,
+                    pose_only: false,
+                    codes: Some(&codes[..1]),
+                    started,
+                    first: 0,
+                },
                 &mut |_, _| {},
             )?
             .remove(0);
@@ -529,19 +559,12 @@ impl Registrar {
         Ok(kept)
     }
 
-    /// One stage of `register_batch` (`pose_only`: the latent code stays where it
-    /// starts), each job's code starting at `codes` (device coordinates, as a stage
-    /// returns them) or the mean; `on_chunk` counts iterations from `first`.
-    #[allow(clippy::too_many_arguments)]
+    /// One stage of `register_batch` ([`Stage`]).
     fn run(
         &self,
         ctx: &Context,
         jobs: &[Job],
-        params: &RegisterParams,
-        pose_only: bool,
-        codes: Option<&[Vec<f32>]>,
-        started: Instant,
-        first: usize,
+        stage: Stage,
         on_chunk: &mut impl OnChunk,
     ) -> Result<Vec<Staged>> {
         // Only the region around the mask and the jobs' silhouettes is rendered and
@@ -550,17 +573,13 @@ impl Registrar {
         // the region has not) runs again on the whole image, at the region's step.
         let mut run_in = |region: Option<&Region>| {
             let Some(region) = region else {
-                return self.run_whole(
-                    ctx, jobs, params, pose_only, codes, started, first, on_chunk,
-                );
+                return self.run_whole(ctx, jobs, stage, on_chunk);
             };
             let cut: Vec<Cut> = jobs.iter().map(|job| region.cut(job)).collect();
             let cut_jobs: Vec<Job> = jobs.iter().zip(&cut).map(|(j, c)| c.job(j)).collect();
-            self.run_whole(
-                ctx, &cut_jobs, params, pose_only, codes, started, first, on_chunk,
-            )
+            self.run_whole(ctx, &cut_jobs, stage, on_chunk)
         };
-        let Some(region) = Region::of_interest(jobs, params.detail)? else {
+        let Some(region) = Region::of_interest(jobs, stage.params.detail)? else {
             return run_in(None);
         };
         let staged = run_in(Some(&region))?;
@@ -575,18 +594,20 @@ impl Registrar {
     }
 
     /// [`Registrar::run`] on the jobs' whole images.
-    #[allow(clippy::too_many_arguments)]
     fn run_whole(
         &self,
         ctx: &Context,
         jobs: &[Job],
-        params: &RegisterParams,
-        pose_only: bool,
-        codes: Option<&[Vec<f32>]>,
-        started: Instant,
-        first: usize,
+        stage: Stage,
         on_chunk: &mut impl OnChunk,
     ) -> Result<Vec<Staged>> {
+        let Stage {
+            params,
+            pose_only,
+            codes,
+            started,
+            first,
+        } = stage;
         if jobs.is_empty() {
             return Ok(Vec::new());
         }

@@ -259,6 +259,19 @@ impl<'a> Task<'a> {
     }
 }
 
+/// One stage of a registration (`Registrar::run`): its parameters, whether the latent
+/// code stays where it starts (`pose_only`), where each job's code starts (`codes`, device
+/// coordinates as a stage returns them; None: the mean), when the registration started,
+/// and the iterations before it (`on_chunk` counts from `first`).
+#[derive(Clone, Copy)]
+pub(super) struct Stage<'a> {
+    pub(super) params: &'a RegisterParams,
+    pub(super) pose_only: bool,
+    pub(super) codes: Option<&'a [Vec<f32>]>,
+    pub(super) started: std::time::Instant,
+    pub(super) first: usize,
+}
+
 /// What one stage of a registration (`Registrar::run`) returns.
 pub(super) struct Staged {
     pub(super) result: Registration,
