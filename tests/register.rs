@@ -845,6 +845,28 @@ fn the_starts_turns_find_a_mug_s_handle() {
     assert_eq!(one_stages, [STAGE_ALIGN, STAGE_REACH, STAGE_FIT]);
     // The handle was found by a turn: the joint fit ran again from it.
     assert_eq!(five_stages, [STAGE_ALIGN, STAGE_REACH, STAGE_TURNED]);
+    // The one path from an observation gives the same registration: the images read into
+    // an Observation, the schedule for it, five starts planned.
+    let observation = vkdr::Observation::new(
+        view(start).camera,
+        vkdr::ViewImages {
+            mask: mask.clone(),
+            depth: Some(depth.clone()),
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let free = RegisterParams::for_observation(vkdr::PoseMode::Free, &observation);
+    assert_eq!(format!("{free:?}"), format!("{params:?}"));
+    let plan = vkdr::Plan {
+        gravity: job.gravity,
+        ..vkdr::Plan::new(start, up, free)
+    };
+    assert_eq!(plan.starts, vkdr::register::DEFAULT_STARTS);
+    let observed = registrar
+        .register_observation(&ctx, &space, &observation, &plan, |_, _| {})
+        .unwrap();
+    assert_eq!(eval::pose_error(observed.pose, pose).0.to_degrees(), five);
     common::assert_no_validation_errors(&ctx);
     eprintln!("from 24 degrees off: {one:.1} degrees from one start, {five:.1} from five");
     assert!(
