@@ -150,10 +150,11 @@ impl Observation {
     }
 }
 
-/// A view's mask, depth and shading checked against `camera`'s size, the shading
-/// background off the mask, the ignored pixels unknown.
+/// One view's mask, depth and shading.
 type Images = (Vec<f32>, Option<Vec<f32>>, Option<Vec<f32>>);
 
+/// A view's images checked against `camera`'s size (`which` names the view in errors), the
+/// shading background off the mask, the ignored pixels unknown.
 fn view_images(camera: &Camera, images: ViewImages, which: &str) -> Result<Images> {
     let n = (camera.width * camera.height) as usize;
     let ViewImages {
