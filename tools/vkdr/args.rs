@@ -1,5 +1,7 @@
 //! The flag groups several commands share: camera and pose (render, grad, register), CPD
-//! (cpd, shape-space), depth loss and shading (register, eval).
+//! (cpd, shape-space), depth loss and shading (register, eval), shards (eval, eval-frames).
+
+use std::path::PathBuf;
 
 use anyhow::Result;
 
@@ -202,4 +204,24 @@ pub fn code_prior(text: &str, pixels: usize) -> Result<f64> {
         Ok(w) if w.is_finite() && (0.0..=1.0).contains(&w) => Ok(w),
         _ => anyhow::bail!("--code-prior must be auto or a weight in [0, 1], not {text}"),
     }
+}
+
+/// The flags of a run in shards (`eval`, `eval-frames`): one process a shard, the tables
+/// from their merge.
+#[derive(clap::Args)]
+pub struct ShardArgs {
+    /// Evaluate shard K of N only (K from 0 to N-1, as $SLURM_ARRAY_TASK_ID), the units
+    /// (a test instance, a frame's object) balanced by expected cost; writes
+    /// OUT/shard.json for --merge.
+    #[arg(long)]
+    pub shard: Option<String>,
+    /// A folder of shape spaces (CATEGORY.npz) and of the models' references (references/:
+    /// each model's oracle and space optimum): read where they are there, computed and
+    /// saved there where not, so that the shards of a run compute each once.
+    #[arg(long)]
+    pub spaces: Option<PathBuf>,
+    /// Merge the shards of a run: OUT, then the shards' --out folders. Writes the tables
+    /// one process would write into OUT, from the settings the shards carry.
+    #[arg(long, num_args = 2.., value_names = ["OUT", "SHARD_DIR"], conflicts_with_all = ["out", "shard", "spaces"])]
+    pub merge: Option<Vec<PathBuf>>,
 }

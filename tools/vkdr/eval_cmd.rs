@@ -10,7 +10,7 @@ use vkdr::shape::ShapeSpace;
 use vkdr::Mesh;
 use vkdr_app::eval::{self, EvalSettings, Row};
 
-use crate::args::{DepthLossArgs, RenamedArgs, ShadingArgs};
+use crate::args::{DepthLossArgs, RenamedArgs, ShadingArgs, ShardArgs};
 use crate::choices::{LossChoice, OptimizerChoice};
 use crate::eval_report::write_reports;
 use crate::shard;
@@ -19,7 +19,7 @@ use crate::spaces::{category_dirs, dir_name, obj_files, shared_space, stem};
 #[derive(clap::Args)]
 pub struct Args {
     /// A dataset in the layout of `vkdr gen-dataset`.
-    #[arg(long, required_unless_present = "merge")]
+    #[arg(long, required_unless_present = "merge", conflicts_with = "merge")]
     dataset: Option<PathBuf>,
     #[arg(long, default_value_t = 10)]
     trials: usize,
@@ -140,18 +140,8 @@ pub struct Args {
     /// Run even where `check-dataset` finds the set unusable (millimetres, no meshes, ...).
     #[arg(long)]
     skip_checks: bool,
-    /// Evaluate shard K of N only (K from 0 to N-1, as $SLURM_ARRAY_TASK_ID), one test
-    /// instance a unit, balanced by expected cost; writes OUT/shard.json for --merge.
-    #[arg(long)]
-    shard: Option<String>,
-    /// A folder of shape spaces (CATEGORY.npz): each category's is read from it where it
-    /// is there and built and saved there where not, so the shards of a run build each once.
-    #[arg(long)]
-    spaces: Option<PathBuf>,
-    /// Merge the shards of a run: OUT, then the shards' --out folders. Writes the tables
-    /// one process would write into OUT; the run's flags come from the shards.
-    #[arg(long, num_args = 2.., value_names = ["OUT", "SHARD_DIR"], conflicts_with_all = ["dataset", "out", "shard", "spaces"])]
-    merge: Option<Vec<PathBuf>>,
+    #[command(flatten)]
+    shards: ShardArgs,
     #[arg(long, required_unless_present = "merge")]
     out: Option<PathBuf>,
 }
@@ -159,7 +149,7 @@ pub struct Args {
 impl Args {
     /// The output folder (--out, or the first folder of --merge).
     pub fn out(&self) -> &Path {
-        shard::out_folder(&self.merge, &self.out)
+        shard::out_folder(&self.shards.merge, &self.out)
     }
 }
 
@@ -174,7 +164,7 @@ struct Flags {
 /// `vkdr eval`: the default settings with the flags' changes; a shard of them, or the
 /// merge of shards.
 pub fn run(args: &Args) -> Result<()> {
-    if let Some(merge) = &args.merge {
+    if let Some(merge) = &args.shards.merge {
         return shard::write_merged(
             "eval",
             &merge[0],
@@ -191,11 +181,16 @@ pub fn run(args: &Args) -> Result<()> {
         );
     }
     let settings = settings(args)?;
-    let shard = args.shard.as_deref().map(shard::Shard::parse).transpose()?;
-    shard::check_spaces(args.spaces.as_deref())?;
+    let shard = args
+        .shards
+        .shard
+        .as_deref()
+        .map(shard::Shard::parse)
+        .transpose()?;
+    shard::check_spaces(args.shards.spaces.as_deref())?;
     let plan = Plan {
         shard,
-        spaces: args.spaces.as_deref(),
+        spaces: args.shards.spaces.as_deref(),
     };
     evaluate(
         args.dataset.as_deref().expect("clap requires --dataset"),

@@ -17,7 +17,7 @@ use vkdr::{Mesh, Pose};
 use vkdr_app::bop::{self, Frame, FrameObject, ObjectCategory};
 use vkdr_app::eval::{self, EvalSettings, GravitySource, Images, TrialScene, TrialSource};
 
-use crate::args::{DepthLossArgs, RenamedArgs};
+use crate::args::{DepthLossArgs, RenamedArgs, ShardArgs};
 use crate::shard;
 use crate::spaces::{dir_name, obj_files};
 
@@ -25,12 +25,12 @@ use crate::spaces::{dir_name, obj_files};
 pub struct Args {
     /// A BOP scene folder (scene_camera.json, scene_gt.json, depth/, mask_visib/, optionally
     /// mask/ and rgb/), or a folder of them.
-    #[arg(required_unless_present = "merge")]
+    #[arg(required_unless_present = "merge", conflicts_with = "merge")]
     dir: Option<PathBuf>,
     /// The map from BOP obj_id to category: {"OBJ_ID": {"category": DIR, "model": PLY or
     /// OBJ in millimetres, "model_to_category": {"translation": [m], "rotation": [axis-angle]}}}.
     /// Default: DIR/map.json.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "merge")]
     categories: Option<PathBuf>,
     /// Only these images: SCENE/IMAGE, comma-separated (e.g. 000000/1,000001/19); an
     /// error where one is not in DIR.
@@ -67,17 +67,8 @@ pub struct Args {
     depth_loss: DepthLossArgs,
     #[command(flatten)]
     renamed: RenamedArgs,
-    /// Evaluate shard K of N only (K from 0 to N-1), one frame's object a unit; writes
-    /// OUT/shard.json for --merge (as `vkdr eval --shard`).
-    #[arg(long)]
-    shard: Option<String>,
-    /// A folder of shape spaces (CATEGORY.npz) and of the models' references (references/:
-    /// each model's oracle and space optimum), read where there, computed and saved where not.
-    #[arg(long)]
-    spaces: Option<PathBuf>,
-    /// Merge the shards of a run: OUT, then the shards' --out folders.
-    #[arg(long, num_args = 2.., value_names = ["OUT", "SHARD_DIR"], conflicts_with_all = ["dir", "categories", "out", "shard", "spaces"])]
-    merge: Option<Vec<PathBuf>>,
+    #[command(flatten)]
+    shards: ShardArgs,
     #[arg(long, required_unless_present = "merge")]
     out: Option<PathBuf>,
 }
@@ -85,7 +76,7 @@ pub struct Args {
 impl Args {
     /// The output folder (--out, or the first folder of --merge).
     pub fn out(&self) -> &Path {
-        shard::out_folder(&self.merge, &self.out)
+        shard::out_folder(&self.shards.merge, &self.out)
     }
 }
 
@@ -139,7 +130,7 @@ struct Target<'a> {
 }
 
 pub fn run(args: &Args) -> Result<()> {
-    if let Some(merge) = &args.merge {
+    if let Some(merge) = &args.shards.merge {
         return shard::write_merged(
             "eval-frames",
             &merge[0],
@@ -158,8 +149,13 @@ pub fn run(args: &Args) -> Result<()> {
         );
     }
     let base = settings(args)?;
-    let shard = args.shard.as_deref().map(shard::Shard::parse).transpose()?;
-    shard::check_spaces(args.spaces.as_deref())?;
+    let shard = args
+        .shards
+        .shard
+        .as_deref()
+        .map(shard::Shard::parse)
+        .transpose()?;
+    shard::check_spaces(args.shards.spaces.as_deref())?;
     let dir = args.dir.as_deref().expect("clap requires DIR");
     let default_map = dir.join("map.json");
     let map_file = args.categories.as_deref().unwrap_or(&default_map);
@@ -266,7 +262,7 @@ pub fn run(args: &Args) -> Result<()> {
                     dir,
                     &dir_name(dir),
                     &base,
-                    args.spaces.as_deref(),
+                    args.shards.spaces.as_deref(),
                 )?)
             }
         };
@@ -286,7 +282,7 @@ pub fn run(args: &Args) -> Result<()> {
                     up,
                 };
                 let reference = eval::Reference::cached(
-                    args.spaces.as_deref(),
+                    args.shards.spaces.as_deref(),
                     || eprint!("\r  obj_id {obj_id}: the model's oracle and space optimum "),
                     &ctx,
                     &model,
