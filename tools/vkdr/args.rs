@@ -225,3 +225,15 @@ pub struct ShardArgs {
     #[arg(long, num_args = 2.., value_names = ["OUT", "SHARD_DIR"], conflicts_with_all = ["out", "shard", "spaces"])]
     pub merge: Option<Vec<PathBuf>>,
 }
+
+impl ShardArgs {
+    /// The shard to evaluate (None: every unit), after checking that --spaces can be a
+    /// folder of spaces.
+    pub fn shard(&self) -> Result<Option<crate::shard::Shard>> {
+        crate::shard::check_spaces(self.spaces.as_deref())?;
+        self.shard
+            .as_deref()
+            .map(crate::shard::Shard::parse)
+            .transpose()
+    }
+}

@@ -181,13 +181,7 @@ pub fn run(args: &Args) -> Result<()> {
         );
     }
     let settings = settings(args)?;
-    let shard = args
-        .shards
-        .shard
-        .as_deref()
-        .map(shard::Shard::parse)
-        .transpose()?;
-    shard::check_spaces(args.shards.spaces.as_deref())?;
+    let shard = args.shards.shard()?;
     let plan = Plan {
         shard,
         spaces: args.shards.spaces.as_deref(),

@@ -149,13 +149,7 @@ pub fn run(args: &Args) -> Result<()> {
         );
     }
     let base = settings(args)?;
-    let shard = args
-        .shards
-        .shard
-        .as_deref()
-        .map(shard::Shard::parse)
-        .transpose()?;
-    shard::check_spaces(args.shards.spaces.as_deref())?;
+    let shard = args.shards.shard()?;
     let dir = args.dir.as_deref().expect("clap requires DIR");
     let default_map = dir.join("map.json");
     let map_file = args.categories.as_deref().unwrap_or(&default_map);

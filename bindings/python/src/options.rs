@@ -290,12 +290,14 @@ impl Options {
         if !(options.up.is_finite() && options.up.length() > 0.0) {
             return Err(bad("up", "must be a nonzero direction (x, y, z)"));
         }
-        let starts = options.start_count().map_err(crate::py_error)?;
-        if starts > 1 && !options.optimize_pose {
-            return Err(bad(
-                "starts",
-                "turns the starting pose: give optimize_pose=True too",
-            ));
+        if let Some(count) = options.starts {
+            register::check_starts(count).map_err(crate::py_error)?;
+            if count > 1 && !options.optimize_pose {
+                return Err(bad(
+                    "starts",
+                    "turns the starting pose: give optimize_pose=True too",
+                ));
+            }
         }
         Ok(options)
     }
@@ -310,18 +312,6 @@ impl Options {
                 ..self
             },
         }
-    }
-
-    /// Starts: as given, else [`register::DEFAULT_STARTS`] with the pose free and 1 with
-    /// it known.
-    pub(crate) fn start_count(&self) -> vkdr::Result<usize> {
-        let count = self.starts.unwrap_or(if self.optimize_pose {
-            register::DEFAULT_STARTS
-        } else {
-            1
-        });
-        register::check_starts(count)?;
-        Ok(count)
     }
 
     /// The parameters for these observations: the engine's schedule for them
@@ -357,12 +347,14 @@ impl Options {
         Ok(params)
     }
 
-    /// The plan of a registration of `looks` from `pose`: the starts and gravity asked for.
+    /// The plan of a registration of `looks` from `pose`: the starts asked for (else the
+    /// engine's for the schedule, [`Plan::new`]) and gravity.
     pub(crate) fn plan(&self, looks: &Looks, pose: vkdr::Pose) -> vkdr::Result<Plan> {
+        let plan = Plan::new(pose, self.up, self.params(looks)?);
         Ok(Plan {
-            starts: self.start_count()?,
+            starts: self.starts.unwrap_or(plan.starts),
             gravity: self.gravity(looks)?,
-            ..Plan::new(pose, self.up, self.params(looks)?)
+            ..plan
         })
     }
 
