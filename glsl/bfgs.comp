@@ -12,7 +12,8 @@
 // hand-set learning rates; H starts as a diagonal that makes the first step of each part
 // the configured length.
 //
-// The code is bounded to +-CODE_BOUND (training RMS deformations) by an active set, in
+// Each code coordinate i is bounded to +-bound(i) (CODE_BOUND training standard deviations along
+// it, register::CodeCoordinates) by an active set, in
 // the manner of projected quasi-Newton methods (Bertsekas 1982; L-BFGS-B's subspace
 // step): a code coordinate on its bound whose gradient pushes outward is held (active),
 // and the free coordinates take the model's minimum with the active ones fixed,
@@ -64,6 +65,7 @@ layout(push_constant, std430) uniform Constants {
     uint h_at;
     uint scratch_at;
     uint prior_at;
+    uint bound_at;
     uint gravity_at;
     uint state_len;
 } pc;
@@ -73,7 +75,7 @@ layout(push_constant, std430) uniform Constants {
 const uint ITERATION = 0u;
 const uint MAX_N = 64u;
 uint n() { return pc.dims + 6u; }
-const float CODE_BOUND = 3.0;
+float bound(uint i) { return state[pc.bound_at + i]; }
 
 float x_at(uint i) { return i < pc.dims ? state[pc.latent_at + i] : state[pc.pose_x_at + i - pc.dims]; }
 void set_x(uint i, float v) {
@@ -106,7 +108,7 @@ bool moves(uint i) {
 bool held(uint i, float gi) {
     if (i >= pc.dims) return false;
     float x = x_at(i);
-    return (x >= CODE_BOUND && gi < 0.0) || (x <= -CODE_BOUND && gi > 0.0);
+    return (x >= bound(i) && gi < 0.0) || (x <= -bound(i) && gi > 0.0);
 }
 
 float l(uint i, uint j) { return state[pc.scratch_at + i * n() + j]; }
@@ -276,7 +278,7 @@ void main() {
         state[pc.halvings_at] += 1.0;
     }
     // The trial point projected onto the box (halving towards an accepted point stays in it).
-    for (uint i = 0u; i < pc.dims; ++i) state[pc.latent_at + i] = clamp(state[pc.latent_at + i], -CODE_BOUND, CODE_BOUND);
+    for (uint i = 0u; i < pc.dims; ++i) state[pc.latent_at + i] = clamp(state[pc.latent_at + i], -bound(i), bound(i));
     // The code after this iteration is the best found so far.
     for (uint j = 0u; j < pc.dims; ++j) {
         if (t < pc.max_iterations) state[pc.codes_at + t * pc.dims + j] = state[pc.accepted_at + j];

@@ -47,6 +47,7 @@ layout(push_constant, std430) uniform Constants {
     uint h_at;
     uint scratch_at;
     uint prior_at;
+    uint bound_at;
     uint gravity_at;
     uint state_len;
 } pc;
@@ -92,9 +93,11 @@ void main() {
             float bias2 = 1.0 - pow(0.999, float(t + 1u));
             step = pc.latent_step * decay * (m1 / bias1) / (sqrt(m2 / bias2) + 1e-12);
         }
-        // Projected step: codes stay within 3 standard deviations of the training set
-        // (beyond it the space extrapolates and a stray gradient could run away).
-        state[pc.latent_at + j] = clamp(state[pc.latent_at + j] - step, -3.0, 3.0);
+        // Projected step: codes stay within their bound, CODE_BOUND standard deviations of
+        // the training set (beyond it the space extrapolates and a stray gradient could
+        // run away).
+        float bound = state[pc.bound_at + j];
+        state[pc.latent_at + j] = clamp(state[pc.latent_at + j] - step, -bound, bound);
     }
     for (uint j = 0u; j < pc.dims; ++j) {
         if (t < pc.max_iterations) state[pc.codes_at + t * pc.dims + j] = state[pc.latent_at + j];

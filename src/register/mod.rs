@@ -7,8 +7,9 @@
 //! quasi-Newton BFGS over the code and the pose together (see `glsl/bfgs.comp`), which with
 //! the pose known reaches about the oracle's error in the paper's 30 iterations where SGD
 //! stays at 2-4 times it. With pose optimisation the pose can
-//! first be aligned alone (`RegisterParams::align`). Codes are kept within 3 units of the
-//! optimiser's coordinates (projected steps; see `optimizer_coordinates`).
+//! first be aligned alone (`RegisterParams::align`). Codes are kept within 10 training
+//! standard deviations along each of the optimiser's coordinates (projected steps; see
+//! `optimizer_coordinates`).
 
 use std::ops::ControlFlow;
 use std::time::Instant;
@@ -112,8 +113,8 @@ pub struct Registration {
     /// Wall time from the start of the call until this registration finished,
     /// milliseconds.
     pub milliseconds: f64,
-    /// Code coordinates on the optimiser's bound at the end (+-[`CODE_BOUND`] in its
-    /// coordinates).
+    /// Code coordinates on the optimiser's bound at the end ([`CODE_BOUND`] training
+    /// standard deviations along each of its coordinates).
     pub on_bound: usize,
     /// The uniform scale of the shape (1 unless [`RegisterParams::optimize_scale`]):
     /// `vertices` are the deformed canonical times it.

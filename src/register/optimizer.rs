@@ -8,7 +8,7 @@
 use bytemuck::{Pod, Zeroable};
 use glam::{DMat3, DVec3};
 
-use super::{Gravity, RegisterParams};
+use super::{Gravity, RegisterParams, CODE_BOUND};
 use crate::cpd::linalg::{self, Matrix};
 use crate::error::{Error, Result};
 use crate::gpu::{Binding, ComputePipeline, Context, Groups, Recorder};
@@ -114,9 +114,11 @@ pub(super) struct StateLayout {
     pub(super) h: u32,
     pub(super) scratch: u32,
     /// What the optimisers add to the images' loss (`glsl/include/objective.glsl`): the
-    /// code prior's matrix P (dims x dims, row-major), and gravity (up axis, direction,
-    /// tolerance, on: 8 floats). Written by [`StateLayout::initial`].
+    /// code prior's matrix P (dims x dims, row-major); each code coordinate's bound (dims,
+    /// [`CodeCoordinates::bound`]); and gravity (up axis, direction, tolerance, on: 8
+    /// floats). Written by [`StateLayout::initial`].
     pub(super) prior: u32,
+    pub(super) bound: u32,
     pub(super) gravity: u32,
     /// Floats in all.
     pub(super) len: u32,
@@ -148,17 +150,27 @@ impl StateLayout {
             h,
             scratch: h + n * n,
             prior: h + 2 * n * n,
-            gravity: h + 2 * n * n + d * d,
-            len: h + 2 * n * n + d * d + 8,
+            bound: h + 2 * n * n + d * d,
+            gravity: h + 2 * n * n + d * d + d,
+            len: h + 2 * n * n + d * d + d + 8,
         }
     }
 
     /// The state before the first iteration: zeros, but for the code prior's matrix
-    /// (`prior`, dims x dims) and gravity.
-    pub(super) fn initial(&self, prior: &Matrix, gravity: Option<&Gravity>) -> Vec<f32> {
+    /// (`prior`, dims x dims), the code coordinates' bounds (`bound`, dims) and gravity.
+    pub(super) fn initial(
+        &self,
+        prior: &Matrix,
+        bound: &[f64],
+        gravity: Option<&Gravity>,
+    ) -> Vec<f32> {
         let mut state = vec![0f32; self.len as usize];
         let at = self.prior as usize;
         for (i, v) in prior.data.iter().enumerate() {
+            state[at + i] = *v as f32;
+        }
+        let at = self.bound as usize;
+        for (i, v) in bound.iter().enumerate() {
             state[at + i] = *v as f32;
         }
         if let Some(g) = gravity {
@@ -254,53 +266,73 @@ impl StateLayout {
     }
 }
 
-/// The optimiser's coordinates z of the latent code, s = A z. Each z is one training
-/// standard deviation for SGD and Adam (the paper's units). For BFGS the columns of B A are
-/// orthogonal in vertex space and all of one length, the RMS of the training deformations:
-/// the latent dimensions of a PCA over W can be strongly correlated in vertex space
-/// (0.97 for two of a bottle's), and a code beyond 3 standard deviations can be the best
-/// fit of a test instance, which the clamp to 3 units then still allows.
-pub(super) fn optimizer_coordinates(space: &ShapeSpace, optimizer: Optimizer) -> Matrix {
+/// The optimiser's coordinates z of the latent code (s = `to_code` z) and each one's
+/// bound.
+pub(super) struct CodeCoordinates {
+    /// A: the latent code s = A z.
+    pub(super) to_code: Matrix,
+    /// The largest |z| of each coordinate: [`CODE_BOUND`] training standard deviations
+    /// along it.
+    pub(super) bound: Vec<f64>,
+}
+
+/// The optimiser's coordinates of the latent code. Each is a direction along which the
+/// training codes are uncorrelated with unit variance (u = s / sd per dimension, then
+/// rotated), so that [`CODE_BOUND`] training standard deviations along it bounds it.
+/// For SGD and Adam each z is one dimension's standard deviation (the paper's units). For
+/// BFGS the rotation makes the columns of B A orthogonal in vertex space (the eigenvectors
+/// of the vertex-space Gram matrix in u, D B^T B D), each scaled to the RMS of the
+/// training deformations, so that the quasi-Newton steps start well conditioned: the
+/// latent dimensions of a PCA over W can be strongly correlated in vertex space (0.97 for
+/// two of a bottle's). A direction with little vertex motion per standard deviation then
+/// has a small bound in these units.
+pub(super) fn optimizer_coordinates(space: &ShapeSpace, optimizer: Optimizer) -> CodeCoordinates {
     let k = space.dims();
-    let t = (space.training_codes.len() as f64 - 1.0).max(1.0);
-    let mut a = Matrix::zeros(k, k);
+    let sd = space.code_deviations();
+    let mut to_code = Matrix::zeros(k, k);
     if optimizer != Optimizer::Bfgs {
-        for (j, sd) in space.code_deviations().into_iter().enumerate() {
-            a.set(j, j, sd);
+        for (j, &d) in sd.iter().enumerate() {
+            to_code.set(j, j, d);
         }
-        return a;
+        return CodeCoordinates {
+            to_code,
+            bound: vec![CODE_BOUND; k],
+        };
     }
     let basis = &space.deformation_basis;
     let mut gram = Matrix::zeros(k, k);
     for i in 0..k {
         for j in 0..k {
-            gram.set(
-                i,
-                j,
-                basis[i].iter().zip(&basis[j]).map(|(a, b)| a * b).sum(),
-            );
+            let dot: f64 = basis[i].iter().zip(&basis[j]).map(|(a, b)| a * b).sum();
+            gram.set(i, j, sd[i] * dot * sd[j]);
         }
     }
+    // The mean squared training deformation |B s|^2.
+    let t = (space.training_codes.len() as f64 - 1.0).max(1.0);
     let spread = space
         .training_codes
         .iter()
         .map(|c| {
+            let u: Vec<f64> = c.iter().zip(&sd).map(|(s, d)| s / d).collect();
             (0..k)
                 .flat_map(|i| (0..k).map(move |j| (i, j)))
-                .map(|(i, j)| c[i] * gram.at(i, j) * c[j])
+                .map(|(i, j)| u[i] * gram.at(i, j) * u[j])
                 .sum::<f64>()
         })
         .sum::<f64>()
         / t;
     let (values, vectors) = linalg::symmetric_eigen(&gram);
     let floor = 1e-12 * values.iter().sum::<f64>().max(f64::MIN_POSITIVE);
+    let mut bound = Vec::with_capacity(k);
     for c in 0..k {
+        // z_c = `scale` training standard deviations along the direction.
         let scale = spread.sqrt() / values[c].max(floor).sqrt();
         for j in 0..k {
-            a.set(j, c, vectors.at(j, c) * scale);
+            to_code.set(j, c, sd[j] * vectors.at(j, c) * scale);
         }
+        bound.push(CODE_BOUND / scale);
     }
-    a
+    CodeCoordinates { to_code, bound }
 }
 
 /// The code prior's matrix P in the optimiser's coordinates (s = `to_code` z):
@@ -340,6 +372,8 @@ mod tests {
     struct BfgsReference {
         steps: [f64; 3],
         dims: usize,
+        /// Each code coordinate's bound.
+        bound: Vec<f64>,
         x: Vec<f64>,
         accepted: Vec<f64>,
         accepted_grad: Vec<f64>,
@@ -354,11 +388,13 @@ mod tests {
     }
 
     impl BfgsReference {
-        fn new(dims: usize, steps: [f64; 3]) -> Self {
+        fn new(bound: &[f64], steps: [f64; 3]) -> Self {
+            let dims = bound.len();
             let n = dims + 6;
             Self {
                 steps,
                 dims,
+                bound: bound.to_vec(),
                 x: vec![0.0; n],
                 accepted: vec![0.0; n],
                 accepted_grad: vec![0.0; n],
@@ -376,7 +412,10 @@ mod tests {
         fn direction(&mut self, g: &[f64]) -> Vec<f64> {
             let n = self.x.len();
             let held: Vec<usize> = (0..self.dims)
-                .filter(|&i| (self.x[i] >= 3.0 && g[i] < 0.0) || (self.x[i] <= -3.0 && g[i] > 0.0))
+                .filter(|&i| {
+                    let (x, b) = (self.x[i], self.bound[i]);
+                    (x >= b && g[i] < 0.0) || (x <= -b && g[i] > 0.0)
+                })
                 .collect();
             let free_g: Vec<f64> = (0..n)
                 .map(|i| if held.contains(&i) { 0.0 } else { g[i] })
@@ -483,8 +522,8 @@ mod tests {
                     self.x[i] = self.accepted[i] + 0.5 * (self.x[i] - self.accepted[i]);
                 }
             }
-            for xi in &mut self.x[..self.dims] {
-                *xi = xi.clamp(-3.0, 3.0);
+            for (xi, b) in self.x[..self.dims].iter_mut().zip(&self.bound) {
+                *xi = xi.clamp(-b, *b);
             }
             self.t += 1;
         }
@@ -509,7 +548,8 @@ mod tests {
     /// code and the pose offsets (fed to the shader as the renderer would: the rotation
     /// gradient for a left increment of the current rotation), step by step, and the pose
     /// it writes into the view: once with the optimum inside the code bounds, once with
-    /// the first code coordinate's optimum past its bound.
+    /// the first code coordinate's optimum past its bound (each coordinate has its own,
+    /// [`BOUND`]).
     #[test]
     fn bfgs_shader_matches_a_float64_reference() {
         let inside = bfgs_case(None, 0.0);
@@ -521,7 +561,7 @@ mod tests {
         );
         let bounded = bfgs_case(Some(3.4), 0.0);
         assert!(bounded.held > 0, "no step held a coordinate on its bound");
-        assert_eq!(bounded.accepted[0], 3.0);
+        assert_eq!(bounded.accepted[0], BOUND[0]);
         // With a code prior the shader adds it to the loss and the gradient itself.
         let prior = bfgs_case(None, 0.3);
         assert!(prior.accepted[..3]
@@ -529,6 +569,9 @@ mod tests {
             .zip(&inside.accepted)
             .any(|(a, b)| (a - b).abs() > 1e-2));
     }
+
+    /// The code coordinates' bounds of [`bfgs_shader_matches_a_float64_reference`].
+    const BOUND: [f64; 3] = [2.5, 3.0, 2.0];
 
     /// One run of [`bfgs_shader_matches_a_float64_reference`], with the first code
     /// coordinate's optimum at `code_target` if given and a code prior of weight `prior`
@@ -542,7 +585,7 @@ mod tests {
         };
         let ctx = Context::with_options(options).expect("the tests need a Vulkan device");
         let optimizers = Optimizers::new(&ctx).unwrap();
-        let (k, iterations) = (3usize, 20usize);
+        let (k, iterations) = (3usize, 30usize);
         let n = k + 6;
         let params = RegisterParams {
             iterations,
@@ -635,12 +678,12 @@ mod tests {
         let mut identity = Matrix::zeros(k, k);
         (0..k).for_each(|i| identity.set(i, i, 1.0));
         let mut state =
-            Buffer::from_slice(&ctx, "state", &layout.initial(&identity, None)).unwrap();
+            Buffer::from_slice(&ctx, "state", &layout.initial(&identity, &BOUND, None)).unwrap();
         state.write(0, &[0f32]).unwrap();
         let mut grad_latent = Buffer::from_slice(&ctx, "grad latent", &vec![0f32; k]).unwrap();
         let mut grad_pose = Buffer::from_slice(&ctx, "grad pose", &[0f32; 6]).unwrap();
         let mut stats = Buffer::from_slice(&ctx, "stats", &[0f32; 4]).unwrap();
-        let mut reference = BfgsReference::new(k, [4.0, 0.01, 0.05]);
+        let mut reference = BfgsReference::new(&BOUND, [4.0, 0.01, 0.05]);
         let read_x = |state: &Buffer| -> Vec<f64> {
             let v = state.read::<f32>().unwrap();
             let (latent, pose) = (layout.latent as usize, layout.pose_x as usize);
@@ -702,7 +745,9 @@ mod tests {
             let (_, g) = with_prior(x, loss, g);
             (0..n)
                 .filter(|&i| i != k + 2)
-                .filter(|&i| !(i < k && (x[i] >= 3.0 && g[i] < 0.0 || x[i] <= -3.0 && g[i] > 0.0)))
+                .filter(|&i| {
+                    !(i < k && (x[i] >= BOUND[i] && g[i] < 0.0 || x[i] <= -BOUND[i] && g[i] > 0.0))
+                })
                 .map(|i| g[i] * g[i])
                 .sum::<f64>()
                 .sqrt()
@@ -727,6 +772,8 @@ mod tests {
 
     /// BFGS's code coordinates: the columns of B A are orthogonal in vertex space, each as
     /// long as the RMS training deformation; SGD's are the training standard deviations.
+    /// Either way a coordinate on its bound is a code CODE_BOUND training standard
+    /// deviations long (|s / sd| = 3).
     #[test]
     fn optimizer_coordinates_whiten_the_basis() {
         let space = random_space(&mut Rng::new(2), 6, 4);
@@ -747,7 +794,19 @@ mod tests {
             .sum::<f64>()
             / (t - 1.0);
 
-        let a = optimizer_coordinates(&space, Optimizer::Bfgs);
+        let in_sd = |coordinates: &CodeCoordinates| {
+            for (c, &b) in coordinates.bound.iter().enumerate() {
+                let s: Vec<f64> = (0..k).map(|j| coordinates.to_code.at(j, c) * b).collect();
+                let length = squared(&space.code_in_deviations(&s)).sqrt();
+                assert!(
+                    (length - CODE_BOUND).abs() < 1e-9,
+                    "coordinate {c}: {length} SD"
+                );
+            }
+        };
+        let coordinates = optimizer_coordinates(&space, Optimizer::Bfgs);
+        in_sd(&coordinates);
+        let a = coordinates.to_code;
         let columns: Vec<Vec<f64>> = (0..k)
             .map(|c| deformation(&(0..k).map(|j| a.at(j, c)).collect::<Vec<_>>()))
             .collect();
@@ -762,7 +821,9 @@ mod tests {
             }
         }
 
-        let a = optimizer_coordinates(&space, Optimizer::Sgd);
+        let coordinates = optimizer_coordinates(&space, Optimizer::Sgd);
+        in_sd(&coordinates);
+        let a = coordinates.to_code;
         for j in 0..k {
             let var = space
                 .training_codes

@@ -9,8 +9,11 @@ use crate::gpu::{Buffer, Context};
 use crate::shape::ShapeSpace;
 use crate::Pose;
 
-use super::optimizer::{self, optimizer_coordinates, StateLayout, BFGS_MAX_DIMS, MAX_DIMS};
-use super::{Job, Optimizer, RegisterParams, Registration, CODE_BOUND, SCALE_UNIT, STAGE_FIT};
+use super::optimizer::{
+    self, optimizer_coordinates, CodeCoordinates, StateLayout, BFGS_MAX_DIMS, MAX_DIMS,
+};
+use super::params::SCALE_BOUND;
+use super::{Job, Optimizer, RegisterParams, Registration, SCALE_UNIT, STAGE_FIT};
 
 /// A registration's device buffers and progress.
 pub(super) struct Task<'a> {
@@ -18,6 +21,8 @@ pub(super) struct Task<'a> {
     pub(super) scene: Scene,
     /// The device's coordinates z to latent codes: s = to_code z.
     pub(super) to_code: Matrix,
+    /// Each device coordinate's bound (the scale's too, last where it is fitted).
+    pub(super) bound: Vec<f64>,
     pub(super) base: Buffer,
     pub(super) basis: Buffer,
     pub(super) state: Buffer,
@@ -98,7 +103,7 @@ impl<'a> Task<'a> {
                 .collect();
             Some(Buffer::from_slice(ctx, "rig", &rig)?)
         };
-        let to_code = optimizer_coordinates(space, params.optimizer);
+        let CodeCoordinates { to_code, mut bound } = optimizer_coordinates(space, params.optimizer);
         let base: Vec<f32> = space
             .canonical
             .positions()
@@ -122,10 +127,11 @@ impl<'a> Task<'a> {
         // a scaled shape space is this linear space and the optimisers stay as they are.
         if params.optimize_scale {
             basis.extend(base.iter().map(|&b| (b as f64 * SCALE_UNIT) as f32));
+            bound.push(SCALE_BOUND);
         }
         let layout = StateLayout::new(dims, params.iterations);
         let prior = optimizer::prior_matrix(space, &to_code, dims);
-        let mut state = layout.initial(&prior, job.gravity.as_ref());
+        let mut state = layout.initial(&prior, &bound, job.gravity.as_ref());
         if let Some(code) = code {
             let at = layout.latent as usize;
             state[at..at + dims].copy_from_slice(&code[..dims]);
@@ -134,6 +140,7 @@ impl<'a> Task<'a> {
             space,
             scene,
             to_code,
+            bound,
             base: Buffer::from_slice(ctx, "canonical + offset", &base)?,
             basis: Buffer::from_slice(ctx, "scaled deformation basis", &basis)?,
             state: Buffer::from_slice(ctx, "optimizer state", &state)?,
@@ -227,7 +234,8 @@ impl<'a> Task<'a> {
         let (code, scale) = self.code(coordinates);
         let on_bound = coordinates[..k]
             .iter()
-            .filter(|z| z.abs() as f64 >= CODE_BOUND)
+            .zip(&self.bound)
+            .filter(|&(z, &b)| z.abs() >= b as f32)
             .count();
         let codes_at = at(layout.codes);
         let (codes, scales) = (0..self.done)

@@ -55,6 +55,40 @@ fn category_table(rows: &[Row]) -> String {
     }
     md.push_str(&view_table(rows));
     md.push_str(&preference_table(rows));
+    md.push_str(&code_table(rows));
+    md
+}
+
+/// Where the registered codes lie against the training set, per instance: the largest
+/// code coordinate in training standard deviations (the oracle's, and the mean and largest
+/// over the trials with the pose known and with pose noise), and the trials that ended
+/// with a code coordinate on the optimiser's bound.
+fn code_table(rows: &[Row]) -> String {
+    let mut md = String::from(
+        "\nShape codes (the largest code coordinate in training standard deviations: the oracle's, \
+         then the mean over the trials, largest in brackets; on bound: trials that ended with a code \
+         coordinate on the optimiser's bound, known pose / pose noise):\n\n\
+         | category | instance | oracle (SD) | known pose (SD) | pose noise (SD) | on bound |\n|---|---|---|---|---|---|\n",
+    );
+    for r in rows {
+        let n = r.trials.len().max(1) as f64;
+        let sd = |f: fn(&Trial) -> f64| {
+            let mean = r.trials.iter().map(f).sum::<f64>() / n;
+            let most = r.trials.iter().map(f).fold(0.0, f64::max);
+            format!("{mean:.1} ({most:.1})")
+        };
+        let bound = |f: fn(&Trial) -> usize| r.trials.iter().filter(|t| f(t) > 0).count();
+        md.push_str(&format!(
+            "| {} | {} | {:.1} | {} | {} | {} / {} |\n",
+            r.category,
+            r.instance,
+            r.oracle_code_sd,
+            sd(|t| t.known_pose_code_sd),
+            sd(|t| t.pose_noise_code_sd),
+            bound(|t| t.known_pose_on_bound),
+            bound(|t| t.pose_noise_on_bound),
+        ));
+    }
     md
 }
 
@@ -201,12 +235,12 @@ fn view_table(rows: &[Row]) -> String {
 /// One line per trial: the view, the errors, and the pose error with pose noise.
 pub fn trials_csv(rows: &[Row]) -> String {
     let mut csv = String::from(
-        "category,instance,trial,azimuth_deg,elevation_deg,long_axis_angle_deg,short_axis_angle_deg,known_pose,pose_noise,pose_noise_placed,pose_noise_seen,rotation_error_deg,rotation_error_symmetric_deg,translation_error,known_pose_on_bound,pose_noise_on_bound,known_pose_loss,pose_noise_loss,pose_noise_seen_both_ways,tilt_deg,z_error,scale,gravity_error_deg,z_error_origin,size,gravity_fallback,add_s,centroid_error,rotation_error_nocs_deg,iou,z_error_known\n",
+        "category,instance,trial,azimuth_deg,elevation_deg,long_axis_angle_deg,short_axis_angle_deg,known_pose,pose_noise,pose_noise_placed,pose_noise_seen,rotation_error_deg,rotation_error_symmetric_deg,translation_error,known_pose_on_bound,pose_noise_on_bound,known_pose_loss,pose_noise_loss,pose_noise_seen_both_ways,tilt_deg,z_error,scale,gravity_error_deg,z_error_origin,size,gravity_fallback,add_s,centroid_error,rotation_error_nocs_deg,iou,z_error_known,known_pose_code_sd,pose_noise_code_sd\n",
     );
     for r in rows {
         for (i, t) in r.trials.iter().enumerate() {
             csv.push_str(&format!(
-                "{},{},{i},{:.2},{:.2},{:.2},{:.2},{:e},{:e},{:e},{:e},{:.3},{:.3},{:e},{},{},{:e},{:e},{:e},{:.3},{:e},{:.5},{:.3},{:e},{:.5},{},{:e},{:e},{:.3},{:.4},{:e}\n",
+                "{},{},{i},{:.2},{:.2},{:.2},{:.2},{:e},{:e},{:e},{:e},{:.3},{:.3},{:e},{},{},{:e},{:e},{:e},{:.3},{:e},{:.5},{:.3},{:e},{:.5},{},{:e},{:e},{:.3},{:.4},{:e},{:.3},{:.3}\n",
                 r.category,
                 r.instance,
                 t.azimuth.to_degrees(),
@@ -237,6 +271,8 @@ pub fn trials_csv(rows: &[Row]) -> String {
                 t.rotation_error_nocs.to_degrees(),
                 t.iou,
                 t.z_error_known,
+                t.known_pose_code_sd,
+                t.pose_noise_code_sd,
             ));
         }
     }

@@ -78,6 +78,10 @@ pub struct Row {
     pub oracle: f64,
     /// The least error the shape space reaches on this instance ([`space_optimum`]).
     pub space_optimum: f64,
+    /// The oracle's largest code coordinate in training standard deviations: where the
+    /// truth's own code lies against the training set.
+    #[serde(default)]
+    pub oracle_code_sd: f64,
     pub oracle_chamfer: f64,
     pub known_pose: Stat,
     pub known_pose_chamfer: Stat,
@@ -184,6 +188,21 @@ pub struct Trial {
     pub rotation_error_nocs: f64,
     /// ... and the 3D IoU of the registered and the true oriented bounding boxes.
     pub iou: f64,
+    /// The largest code coordinate in training standard deviations
+    /// ([`ShapeSpace::code_in_deviations`]) with the pose known and with
+    /// pose noise: how far into the tails of the training set the images took the shape.
+    #[serde(default)]
+    pub known_pose_code_sd: f64,
+    #[serde(default)]
+    pub pose_noise_code_sd: f64,
+}
+
+/// The largest |coordinate| of `code` in training standard deviations.
+fn largest_sd(space: &ShapeSpace, code: &[f64]) -> f64 {
+    space
+        .code_in_deviations(code)
+        .into_iter()
+        .fold(0.0, |m, v| m.max(v.abs()))
 }
 
 /// The mean distance from `SAMPLE_POINTS` points sampled uniformly on the surface of
@@ -382,6 +401,7 @@ pub fn evaluate_instance(
         }
         let known_pose_loss = result.loss;
         let known_on_bound = result.on_bound;
+        let known_code_sd = largest_sd(space, &result.code);
         known_ch.push(chamfer(&test_vertices, &result.vertices));
         iterations.push(result.evaluations as f64);
         ms.push(result.milliseconds);
@@ -476,6 +496,8 @@ pub fn evaluate_instance(
                 symmetric_in_view,
             ),
             iou,
+            known_pose_code_sd: known_code_sd,
+            pose_noise_code_sd: largest_sd(space, &result.code),
         });
         noisy_ch.push(chamfer(&test_vertices, &result.vertices));
         noise_iterations.push(result.evaluations as f64);
@@ -501,6 +523,7 @@ pub fn evaluate_instance(
         instance: name.into(),
         oracle,
         space_optimum: optimum,
+        oracle_code_sd: largest_sd(space, &reference.oracle_code),
         oracle_chamfer: chamfer(&test_vertices, oracle_vertices),
         known_pose: stat(|t| t.known_pose),
         known_pose_chamfer: Stat::of(&known_ch),
