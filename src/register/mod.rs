@@ -17,6 +17,7 @@ use std::time::Instant;
 use bytemuck::{Pod, Zeroable};
 use glam::{DMat3, DVec3};
 
+use crate::cpd::linalg::Matrix;
 use crate::diff::DiffRenderer;
 use crate::error::{Error, Result};
 use crate::gpu::{
@@ -26,6 +27,8 @@ use crate::raster::View;
 use crate::shaders;
 use crate::Pose;
 
+mod evidence;
+pub use evidence::{HELD_BELOW, HOLD};
 mod gravity;
 mod job;
 mod nearest;
@@ -43,7 +46,7 @@ pub use observation::{Observation, Plan, PoseMode, ViewImages};
 use params::SCALE_UNIT;
 pub use params::{
     observation_prior, RegisterParams, CODE_BOUND, DETAIL, MAX_ITERATIONS, REACH, REACH_ITERATIONS,
-    SCALE_RANGE, STAGE_ALIGN, STAGE_FIT, STAGE_REACH, STAGE_TURNED,
+    SCALE_RANGE, STAGE_ALIGN, STAGE_FIT, STAGE_HELD, STAGE_REACH, STAGE_TURNED,
 };
 use prepare::{onto_mask, unknown_in_front, Marked};
 use starts::{at_poses, jobs_from, relative_turns};
@@ -355,10 +358,24 @@ impl Registrar {
                     codes: None,
                     started,
                     first: 0,
+                    priors: None,
                 },
                 &mut on_chunk,
             )?;
-            return Ok(runs.into_iter().map(|s| s.result).collect());
+            return self.hold_unseen(
+                ctx,
+                jobs,
+                runs,
+                Stage {
+                    params,
+                    pose_only: false,
+                    codes: None,
+                    started,
+                    first: 0,
+                    priors: None,
+                },
+                &mut on_chunk,
+            );
         }
         let align = RegisterParams {
             iterations: params.align,
@@ -380,6 +397,7 @@ impl Registrar {
                     codes: None,
                     started,
                     first: 0,
+                    priors: None,
                 },
                 &mut on_chunk,
             )?
@@ -409,6 +427,7 @@ impl Registrar {
                     codes: None,
                     started,
                     first: done,
+                    priors: None,
                 },
                 &mut on_chunk,
             )?;
@@ -436,6 +455,7 @@ impl Registrar {
                 codes: codes.as_deref(),
                 started,
                 first: done,
+                priors: None,
             },
             &mut on_chunk,
         )?;
@@ -443,9 +463,27 @@ impl Registrar {
             let fitted = refined.remove(0);
             refined = vec![self.check_turns(ctx, &jobs[0], params, fitted, &turns, started)?];
         }
+        let jobs = at_poses(
+            &jobs,
+            &refined.iter().map(|s| s.result.clone()).collect::<Vec<_>>(),
+        );
+        let refined = self.hold_unseen(
+            ctx,
+            &jobs,
+            refined,
+            Stage {
+                params,
+                pose_only: false,
+                codes: None,
+                started,
+                first: done,
+                priors: None,
+            },
+            &mut on_chunk,
+        )?;
         Ok(aligned
             .into_iter()
-            .zip(refined.into_iter().map(|s| s.result))
+            .zip(refined)
             .map(|(a, mut r)| {
                 r.stages.splice(0..0, a.stages);
                 r.losses.splice(0..0, a.losses);
@@ -455,6 +493,83 @@ impl Registrar {
                 r
             })
             .collect())
+    }
+
+    /// After a fit (`fitted`, one per job, the jobs at its poses): where the images hardly
+    /// constrain some directions of a job's code ([`evidence::held_prior`]), the fit goes
+    /// on from where it stopped with those directions held by the strong prior
+    /// ([`STAGE_HELD`]); the other jobs keep their fit. `stage`: the fit's (its `first`,
+    /// the iterations before it).
+    fn hold_unseen(
+        &self,
+        ctx: &Context,
+        jobs: &[Job],
+        fitted: Vec<Staged>,
+        stage: Stage,
+        on_chunk: &mut impl OnChunk,
+    ) -> Result<Vec<Registration>> {
+        let Stage {
+            params,
+            started,
+            first: done,
+            ..
+        } = stage;
+        let mut held = Vec::new();
+        for (i, (job, staged)) in jobs.iter().zip(&fitted).enumerate() {
+            if !params.hold_unseen {
+                break;
+            }
+            let Some(inverse_hessian) = &staged.inverse_hessian else {
+                continue;
+            };
+            let coordinates = optimizer::optimizer_coordinates(job.space, params.optimizer);
+            let k = job.space.dims();
+            let prior = optimizer::prior_matrix(job.space, &coordinates.to_code, k);
+            if let Some(matrix) = evidence::held_prior(
+                job.space,
+                &coordinates.to_code,
+                &prior,
+                inverse_hessian,
+                params.code_prior,
+            ) {
+                held.push((i, matrix));
+            }
+        }
+        let mut results: Vec<Registration> = fitted.iter().map(|s| s.result.clone()).collect();
+        if held.is_empty() {
+            return Ok(results);
+        }
+        let (which, matrices): (Vec<usize>, Vec<Matrix>) = held.into_iter().unzip();
+        let held_jobs: Vec<Job> = which.iter().map(|&i| jobs[i]).collect();
+        let codes: Vec<Vec<f32>> = which
+            .iter()
+            .map(|&i| fitted[i].coordinates.clone())
+            .collect();
+        let first = done + results.iter().map(|r| r.losses.len()).max().unwrap_or(0);
+        let again = self.run(
+            ctx,
+            &held_jobs,
+            Stage {
+                params,
+                pose_only: false,
+                codes: Some(&codes),
+                started,
+                first,
+                priors: Some(&matrices),
+            },
+            on_chunk,
+        )?;
+        for (i, s) in which.into_iter().zip(again) {
+            let (first, mut r) = (&results[i], s.result);
+            r.stages = first.stages.clone();
+            r.stages.push((STAGE_HELD, r.losses.len()));
+            r.losses.splice(0..0, first.losses.iter().copied());
+            r.codes.splice(0..0, first.codes.iter().cloned());
+            r.scales.splice(0..0, first.scales.iter().copied());
+            r.evaluations += first.evaluations;
+            results[i] = r;
+        }
+        Ok(results)
     }
 
     /// After the joint fit from the first start: the fitted shape and pose turned as each
@@ -513,6 +628,7 @@ impl Registrar {
                 codes: Some(&codes),
                 started,
                 first: 0,
+                priors: None,
             },
             &mut |_, _| {},
         )?;
@@ -539,6 +655,7 @@ impl Registrar {
                     codes: Some(&codes[..1]),
                     started,
                     first: 0,
+                    priors: None,
                 },
                 &mut |_, _| {},
             )?
@@ -608,6 +725,7 @@ impl Registrar {
             codes,
             started,
             first,
+            priors,
         } = stage;
         if jobs.is_empty() {
             return Ok(Vec::new());
@@ -615,7 +733,10 @@ impl Registrar {
         let mut tasks = jobs
             .iter()
             .enumerate()
-            .map(|(i, job)| Task::new(ctx, job, params, codes.map(|c| &c[i][..])))
+            .map(|(i, job)| {
+                let prior = priors.map(|p| &p[i]);
+                Task::new(ctx, job, params, codes.map(|c| &c[i][..]), prior)
+            })
             .collect::<Result<Vec<_>>>()?;
         let mut rec = Recorder::new(ctx)?;
         for task in &tasks {
@@ -675,7 +796,7 @@ impl Registrar {
         params: &RegisterParams,
         repeats: usize,
     ) -> Result<Vec<PassTimes>> {
-        let task = Task::new(ctx, job, params, None)?;
+        let task = Task::new(ctx, job, params, None, None)?;
         let mut rec = Recorder::new(ctx)?;
         task.scene.record_prepare(&self.renderer, &mut rec)?;
         ctx.submit_and_wait(rec)?;

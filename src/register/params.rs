@@ -52,6 +52,10 @@ pub struct RegisterParams {
     /// dimensions. It decides what the images leave open, such as a shape shifted in its
     /// own frame against a shifted pose. 0 (the default): none.
     pub code_prior: f64,
+    /// After the fit, hold the directions of the code the images hardly constrain with a
+    /// strong prior and fit on from there (BFGS; `evidence::held_prior`): the schedules
+    /// do. Costs up to the fit's iterations again where a direction is held.
+    pub hold_unseen: bool,
     /// Fit one uniform scale of the shape too (an instance larger or smaller than the
     /// training set's), within [`SCALE_RANGE`]: observable where depth or a further view
     /// tells the distance; from one mask a scale trades against the distance.
@@ -77,6 +81,9 @@ pub const STAGE_FIT: &str = "fit";
 pub const STAGE_ALIGN: &str = "pose alignment";
 /// The pose brought to the measured depth ([`RegisterParams::reach`]).
 pub const STAGE_REACH: &str = "depth reach";
+/// The fit again from where it stopped, with the directions of the code the images hardly
+/// constrain held by a strong prior (`evidence::held_prior`).
+pub const STAGE_HELD: &str = "fit with the unseen held";
 /// The joint fit again from a turned start that scored better (the registration from
 /// starts), in place of the first joint fit.
 pub const STAGE_TURNED: &str = "fit from a turn";
@@ -187,6 +194,7 @@ impl RegisterParams {
             iterations: 30,
             optimizer: Optimizer::Bfgs,
             code_prior: observation_prior(pixels),
+            hold_unseen: true,
             detail: DETAIL,
             ..Self::default()
         }
@@ -229,6 +237,7 @@ impl Default for RegisterParams {
             shading: None,
             depth: None,
             code_prior: 0.0,
+            hold_unseen: false,
             optimize_scale: false,
             check_every: 10,
             plateau: 1e-4,

@@ -40,12 +40,15 @@ pub(super) struct Task<'a> {
 }
 
 impl<'a> Task<'a> {
-    /// `code`: where the code starts, in the device's coordinates (None: the mean).
+    /// `code`: where the code starts, in the device's coordinates (None: the mean);
+    /// `prior`: the code prior's matrix in them (k x k; None: the weak prior's,
+    /// [`optimizer::prior_matrix`]).
     pub(super) fn new(
         ctx: &Context,
         job: &Job<'a>,
         params: &RegisterParams,
         code: Option<&[f32]>,
+        prior: Option<&Matrix>,
     ) -> Result<Self> {
         let space = job.space;
         let k = space.dims();
@@ -130,8 +133,15 @@ impl<'a> Task<'a> {
             bound.push(SCALE_BOUND);
         }
         let layout = StateLayout::new(dims, params.iterations);
-        let prior = optimizer::prior_matrix(space, &to_code, dims);
-        let mut state = layout.initial(&prior, &bound, job.gravity.as_ref());
+        let mut matrix = optimizer::prior_matrix(space, &to_code, dims);
+        if let Some(prior) = prior {
+            for i in 0..k {
+                for j in 0..k {
+                    matrix.set(i, j, prior.at(i, j));
+                }
+            }
+        }
+        let mut state = layout.initial(&matrix, &bound, job.gravity.as_ref());
         if let Some(code) = code {
             let at = layout.latent as usize;
             state[at..at + dims].copy_from_slice(&code[..dims]);
@@ -263,6 +273,16 @@ impl<'a> Task<'a> {
                 loss,
             },
             coordinates: coordinates.to_vec(),
+            inverse_hessian: (params.optimizer == Optimizer::Bfgs).then(|| {
+                let (h, n) = (at(layout.h), dims + 6);
+                let mut m = Matrix::zeros(k, k);
+                for i in 0..k {
+                    for j in 0..k {
+                        m.set(i, j, values[h + i * n + j] as f64);
+                    }
+                }
+                m
+            }),
         })
     }
 }
@@ -278,6 +298,9 @@ pub(super) struct Stage<'a> {
     pub(super) codes: Option<&'a [Vec<f32>]>,
     pub(super) started: std::time::Instant,
     pub(super) first: usize,
+    /// Each job's code prior matrix in the optimiser's coordinates, in place of the
+    /// weak prior's ([`super::evidence::held_prior`]).
+    pub(super) priors: Option<&'a [Matrix]>,
 }
 
 /// What one stage of a registration (`Registrar::run`) returns.
@@ -285,6 +308,9 @@ pub(super) struct Staged {
     pub(super) result: Registration,
     /// The code in the device's coordinates, where a next stage starts it.
     pub(super) coordinates: Vec<f32>,
+    /// BFGS: the code block (k x k) of its inverse Hessian estimate at the end, in the
+    /// device's coordinates.
+    pub(super) inverse_hessian: Option<Matrix>,
 }
 
 /// The first view's pose as the device holds it.

@@ -101,6 +101,10 @@ pub struct Args {
     /// pixel count implies, register::observation_prior) or a number (0: none).
     #[arg(long, allow_hyphen_values = true, default_value = "auto")]
     code_prior: String,
+    /// Do not hold the directions of the code the images hardly constrain with a strong
+    /// prior after the fit (RegisterParams::hold_unseen; the schedules do).
+    #[arg(long)]
+    no_hold: bool,
     /// A box in front of the left half of each object in the first view (with --depth its
     /// depth is measured and occlusion is found from the data; without, its pixels are
     /// unknown, as BOP's mask less mask_visib).
@@ -250,6 +254,8 @@ fn settings(args: &Args) -> Result<EvalSettings> {
     let prior = crate::args::code_prior(&args.code_prior, pixels)?;
     settings.known_pose.code_prior = prior;
     settings.pose_noise.code_prior = prior;
+    settings.known_pose.hold_unseen &= !args.no_hold;
+    settings.pose_noise.hold_unseen &= !args.no_hold;
     settings.occluder = args.occluder;
     settings.table = args.table;
     if !(args.depth_holes.is_finite() && (0.0..=0.9).contains(&args.depth_holes)) {

@@ -319,7 +319,21 @@ pub fn write_reports(
         }),
         noisy.optimizer.name(), noisy.iterations,
         if noisy.code_prior > 0.0 {
-            format!("{} loss, plus a code prior of weight {:.3e} in training SD, both conditions", noisy.loss.name(), noisy.code_prior)
+            format!(
+                "{} loss, plus a code prior of weight {:.3e} in training SD, both conditions{}",
+                noisy.loss.name(),
+                noisy.code_prior,
+                if noisy.hold_unseen {
+                    format!(
+                        "; after the fit the directions of the code the images hardly constrain (curvature below {} times the prior's) \
+                         are held by a prior {} times as strong and the fit goes on",
+                        vkdr::register::HELD_BELOW,
+                        vkdr::register::HOLD
+                    )
+                } else {
+                    String::new()
+                }
+            )
         } else {
             format!("{} loss", noisy.loss.name())
         },
@@ -415,6 +429,7 @@ pub fn write_reports(
             "shading": shading_json,
             "depth": depth_json,
             "code_prior": noisy.code_prior,
+            "hold_unseen": noisy.hold_unseen,
             "pose_noise_pose": {
                 "rotation_symmetric_deg": stat(&eval::Stat::of(&r.trials.iter().map(|t| t.rotation_error_symmetric.to_degrees()).collect::<Vec<_>>())),
                 "tilt_deg": stat(&eval::Stat::of(&r.trials.iter().map(|t| t.tilt.to_degrees()).collect::<Vec<_>>())),

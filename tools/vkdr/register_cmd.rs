@@ -90,6 +90,10 @@ pub struct Args {
     /// own frame against a shifted pose.
     #[arg(long, allow_hyphen_values = true, default_value = "auto")]
     code_prior: String,
+    /// Do not hold the directions of the code the images hardly constrain with a strong
+    /// prior after the fit (RegisterParams::hold_unseen; the schedules do).
+    #[arg(long)]
+    no_hold: bool,
     /// With --optimize-pose: starts, the initial pose and it turned about the object's
     /// --up axis by +-15, +-30, ... degrees; the initial pose is registered and the
     /// others' turns are tried on its fit, the joint fit running again from a turn that
@@ -457,6 +461,7 @@ pub fn run(args: &Args) -> Result<()> {
         depth: base.depth.map(|_| depth_loss),
         code_prior: crate::args::code_prior(&args.code_prior, observed.pixels())?,
         optimize_scale: args.optimize_scale,
+        hold_unseen: base.hold_unseen && !args.no_hold,
         ..base
     };
     let gravity = match &args.gravity {
