@@ -12,8 +12,8 @@
 // hand-set learning rates; H starts as a diagonal that makes the first step of each part
 // the configured length.
 //
-// Each code coordinate i is bounded to +-bound(i) (CODE_BOUND training standard deviations along
-// it, register::CodeCoordinates) by an active set, in
+// Each code coordinate i is bounded to +-bound(i) (register::CodeCoordinates: CODE_BOUND
+// training RMS deformations) by an active set, in
 // the manner of projected quasi-Newton methods (Bertsekas 1982; L-BFGS-B's subspace
 // step): a code coordinate on its bound whose gradient pushes outward is held (active),
 // and the free coordinates take the model's minimum with the active ones fixed,

@@ -7,9 +7,8 @@
 //! quasi-Newton BFGS over the code and the pose together (see `glsl/bfgs.comp`), which with
 //! the pose known reaches about the oracle's error in the paper's 30 iterations where SGD
 //! stays at 2-4 times it. With pose optimisation the pose can
-//! first be aligned alone (`RegisterParams::align`). Codes are kept within 10 training
-//! standard deviations along each of the optimiser's coordinates (projected steps; see
-//! `optimizer_coordinates`).
+//! first be aligned alone (`RegisterParams::align`). Codes are kept within 3 units of the
+//! optimiser's coordinates (projected steps; see `optimizer_coordinates`).
 
 use std::ops::ControlFlow;
 use std::time::Instant;
@@ -98,7 +97,7 @@ pub struct Registration {
     /// reach's wide depth cost, the joint fit's loss).
     pub losses: Vec<f64>,
     /// The stages that `losses`, `codes` and `scales` hold, in order: each one's name
-    /// ([`STAGE_FIT`], [`STAGE_ALIGN`], [`STAGE_REACH`], [`STAGE_TURNED`]) and how many
+    /// ([`STAGE_FIT`], [`STAGE_ALIGN`], [`STAGE_REACH`], [`STAGE_TURNED`], [`STAGE_HELD`]) and how many
     /// entries it holds. Their counts add up to `losses.len()`
     /// ([`Registration::iterations`]); `evaluations` counts every evaluation besides (the
     /// turns' checks, a joint fit that a turned one beat).
@@ -116,8 +115,8 @@ pub struct Registration {
     /// Wall time from the start of the call until this registration finished,
     /// milliseconds.
     pub milliseconds: f64,
-    /// Code coordinates on the optimiser's bound at the end ([`CODE_BOUND`] training
-    /// standard deviations along each of its coordinates).
+    /// Code coordinates on the optimiser's bound at the end (+-[`CODE_BOUND`] in its
+    /// coordinates).
     pub on_bound: usize,
     /// The uniform scale of the shape (1 unless [`RegisterParams::optimize_scale`]):
     /// `vertices` are the deformed canonical times it.

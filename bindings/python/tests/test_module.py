@@ -197,7 +197,9 @@ def test_progress_is_reported_and_its_exceptions_raised(device, space, mesh):
     mask, _ = observe(device, space, 2, POSE)
     seen = []
     result = device.register(space, mask, K, SIZE, POSE, progress=lambda done, total: seen.append((done, total)))
-    assert seen and all(0 < done <= total == 30 for done, total in seen)
+    # The total is the most it can take: the fit's 30 iterations, and as many again where
+    # it holds the directions of the code the mask hardly constrains.
+    assert seen and all(0 < done <= total == 60 for done, total in seen)
     assert [d for d, _ in seen] == sorted(d for d, _ in seen) and seen[-1][0] == result.iterations
 
     # A callback that raises stops the registration at that chunk (it is called once,
