@@ -513,11 +513,12 @@ impl Registrar {
             first: done,
             ..
         } = stage;
+        let mut results: Vec<Registration> = fitted.iter().map(|s| s.result.clone()).collect();
+        if !params.holds_unseen() {
+            return Ok(results);
+        }
         let mut held = Vec::new();
         for (i, (job, staged)) in jobs.iter().zip(&fitted).enumerate() {
-            if !params.hold_unseen {
-                break;
-            }
             let Some(inverse_hessian) = &staged.inverse_hessian else {
                 continue;
             };
@@ -534,7 +535,6 @@ impl Registrar {
                 held.push((i, matrix));
             }
         }
-        let mut results: Vec<Registration> = fitted.iter().map(|s| s.result.clone()).collect();
         if held.is_empty() {
             return Ok(results);
         }
