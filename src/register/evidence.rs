@@ -13,16 +13,16 @@
 //!
 //! So after the fit the quasi-Newton estimate of the inverse Hessian tells the images'
 //! curvature along every direction of the code, in training standard deviations (u = s /
-//! sd): the objective's Hessian in the optimiser's coordinates, less the weak prior's, taken
-//! to u. Directions whose curvature is below [`HELD_BELOW`] times the weak prior's are held
+//! sd): the code block of the objective's Hessian in the optimiser's coordinates (the pose
+//! where the fit put it), less the weak prior's, taken to u. Directions whose curvature is below [`HELD_BELOW`] times the weak prior's are held
 //! by a prior [`HOLD`] times as strong, the others keep the weak one, and the fit goes on
 //! from where it stopped (`Registrar::hold_unseen`, stage [`super::STAGE_HELD`]). Where
 //! every direction is constrained nothing changes. On two silhouettes of the generated
 //! bowls the held direction's curvature is 3 to 30 times the weak prior's (the
 //! cavity), a bottle's weakest but one 50 to 120 times (its profile, seen edge-on), and its
 //! weakest about 0 (what a silhouette of a body of revolution cannot see); the seed-1
-//! bowls' known-pose error fell from 2.06 and 1.41 to 1.51 and 0.96 times their oracle's
-//! (docs/evaluation.md).
+//! bowls' known-pose error fell from 1.98 and 2.30 to 1.49 and 0.95 times their oracle's
+//! (docs/evaluation.md). Not with depth ([`super::RegisterParams::holds_unseen`]).
 
 use crate::cpd::linalg::{self, Matrix};
 use crate::shape::ShapeSpace;
@@ -43,9 +43,14 @@ pub const HELD_BELOW: f64 = 40.0;
 
 /// The prior matrix (in the optimiser's coordinates y, s = `to_code` y, times the weak
 /// weight `code_prior` in the objective) that holds the weakly constrained directions,
-/// from the code block `inverse_hessian` (k x k) of the quasi-Newton estimate after a fit,
-/// and `prior` the weak prior's matrix (A^T diag(1 / sd^2) A). None where no direction is
-/// weakly constrained, or the estimate is not positive definite.
+/// from the quasi-Newton estimate `inverse_hessian` after a fit (the code's k coordinates
+/// first, then any others: the scale, the pose), and `prior` the weak prior's matrix (A^T
+/// diag(1 / sd^2) A). The curvature is the code block of its inverse, the Hessian: the
+/// images' curvature with the pose where the fit put it. (The code block of the estimate
+/// itself would be the curvature with the pose free to follow, and would hold the
+/// directions one view trades against the pose: holding those moved the pose instead, a
+/// seed-0 bottle from pose noise ending 5 degrees and 4 mm off.) None where no direction
+/// is weakly constrained, or the estimate is not positive definite.
 pub(super) fn held_prior(
     space: &ShapeSpace,
     to_code: &Matrix,
@@ -57,15 +62,16 @@ pub(super) fn held_prior(
     if code_prior <= 0.0 || k == 0 {
         return None;
     }
-    // The objective's Hessian in y, B = H^-1, less the weak prior's 2 w P.
+    // The objective's Hessian in y, B = H^-1 (its code block), less the weak prior's 2 w P.
+    let n = inverse_hessian.rows;
     let (values, vectors) = linalg::symmetric_eigen(inverse_hessian);
-    if !values.iter().all(|v| v.is_finite() && *v > 0.0) {
+    if n < k || !values.iter().all(|v| v.is_finite() && *v > 0.0) {
         return None;
     }
     let mut curvature = Matrix::zeros(k, k);
     for i in 0..k {
         for j in 0..k {
-            let b: f64 = (0..k)
+            let b: f64 = (0..n)
                 .map(|c| vectors.at(i, c) * vectors.at(j, c) / values[c])
                 .sum();
             curvature.set(i, j, b - 2.0 * code_prior * prior.at(i, j));

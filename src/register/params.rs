@@ -274,7 +274,7 @@ pub fn observation_prior(pixels: usize) -> f64 {
 }
 
 /// The range of [`RegisterParams::optimize_scale`]'s scale: its optimiser coordinate is
-/// bounded to +-[`SCALE_BOUND`] units, one unit a quarter of the size: 0.25
+/// bounded to +-3 units (`SCALE_BOUND`), one unit a quarter of the size: 0.25
 /// to 1.75 (a real master chef can is 1.55 times the mean of the two training cans whose
 /// space registers it; at 0.5 to 1.5 it ended on the bound, 4% small and 10 mm off in z).
 pub const SCALE_RANGE: (f64, f64) = (

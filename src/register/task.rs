@@ -274,14 +274,23 @@ impl<'a> Task<'a> {
             },
             coordinates: coordinates.to_vec(),
             inverse_hessian: (params.optimizer == Optimizer::Bfgs).then(|| {
+                // The coordinates that moved: the code (and scale), the pose where it is
+                // optimised (z where asked for); the others keep their first diagonal.
                 let (h, n) = (at(layout.h), dims + 6);
-                let mut m = Matrix::zeros(k, k);
-                for i in 0..k {
-                    for j in 0..k {
-                        m.set(i, j, values[h + i * n + j] as f64);
-                    }
+                let values = &values;
+                let moved: Vec<usize> = (0..n)
+                    .filter(|&i| {
+                        i < dims || (params.pose_every > 0 && (i != dims + 2 || params.optimize_z))
+                    })
+                    .collect();
+                Matrix {
+                    rows: moved.len(),
+                    cols: moved.len(),
+                    data: moved
+                        .iter()
+                        .flat_map(|&i| moved.iter().map(move |&j| values[h + i * n + j] as f64))
+                        .collect(),
                 }
-                m
             }),
         })
     }
@@ -308,8 +317,8 @@ pub(super) struct Staged {
     pub(super) result: Registration,
     /// The code in the device's coordinates, where a next stage starts it.
     pub(super) coordinates: Vec<f32>,
-    /// BFGS: the code block (k x k) of its inverse Hessian estimate at the end, in the
-    /// device's coordinates.
+    /// BFGS: its inverse Hessian estimate at the end over the coordinates that moved (the
+    /// device's code coordinates first, then the pose's where it moved).
     pub(super) inverse_hessian: Option<Matrix>,
 }
 
