@@ -22,7 +22,8 @@
 //! cavity), a bottle's weakest but one 50 to 120 times (its profile, seen edge-on), and its
 //! weakest about 0 (what a silhouette of a body of revolution cannot see); the seed-1
 //! bowls' known-pose error fell from 1.98 and 2.30 to 1.49 and 0.95 times their oracle's
-//! (docs/evaluation.md). Not with depth ([`super::RegisterParams::holds_unseen`]).
+//! (docs/evaluation.md). Not with depth ([`super::RegisterParams::holds_unseen`]), nor
+//! from one view (`Registrar::hold_unseen`).
 
 use crate::cpd::linalg::{self, Matrix};
 use crate::shape::ShapeSpace;

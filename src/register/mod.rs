@@ -494,8 +494,8 @@ impl Registrar {
             .collect())
     }
 
-    /// After a fit (`fitted`, one per job, the jobs at its poses): where the images hardly
-    /// constrain some directions of a job's code ([`evidence::held_prior`]), the fit goes
+    /// After a fit (`fitted`, one per job, the jobs at its poses): where a job's views
+    /// (two or more) hardly constrain some directions of its code ([`evidence::held_prior`]), the fit goes
     /// on from where it stopped with those directions held by the strong prior
     /// ([`STAGE_HELD`]); the other jobs keep their fit. `stage`: the fit's (its `first`,
     /// the iterations before it).
@@ -519,6 +519,11 @@ impl Registrar {
         }
         let mut held = Vec::new();
         for (i, (job, staged)) in jobs.iter().zip(&fitted).enumerate() {
+            // With one mask what it gains (the bowls) it loses elsewhere (the demo's
+            // bottle, seed 1's bottle): two views or more (docs/evaluation.md).
+            if job.others.is_empty() {
+                continue;
+            }
             let Some(inverse_hessian) = &staged.inverse_hessian else {
                 continue;
             };
