@@ -323,7 +323,7 @@ pub fn write_reports(
                 "{} loss, plus a code prior of weight {:.3e} in training SD, both conditions{}",
                 noisy.loss.name(),
                 noisy.code_prior,
-                if noisy.holds_unseen() {
+                if noisy.holds_unseen() && settings.views > 1 {
                     format!(
                         "; after the fit the directions of the code the images hardly constrain (curvature below {} times the prior's) \
                          are held by a prior {} times as strong and the fit goes on",
@@ -429,7 +429,7 @@ pub fn write_reports(
             "shading": shading_json,
             "depth": depth_json,
             "code_prior": noisy.code_prior,
-            "hold_unseen": noisy.holds_unseen(),
+            "hold_unseen": noisy.holds_unseen() && settings.views > 1,
             "pose_noise_pose": {
                 "rotation_symmetric_deg": stat(&eval::Stat::of(&r.trials.iter().map(|t| t.rotation_error_symmetric.to_degrees()).collect::<Vec<_>>())),
                 "tilt_deg": stat(&eval::Stat::of(&r.trials.iter().map(|t| t.tilt.to_degrees()).collect::<Vec<_>>())),
