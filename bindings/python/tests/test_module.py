@@ -220,8 +220,14 @@ def test_progress_is_reported_and_its_exceptions_raised(device, space, mesh):
         interrupts.append(done)
         signal.raise_signal(signal.SIGINT)
 
-    with pytest.raises(KeyboardInterrupt):
-        device.register(space, mask, K, SIZE, POSE, progress=interrupt)
+    # Python turns SIGINT into KeyboardInterrupt only where SIGINT was not ignored at its
+    # start (a shell without job control starts background commands so): install it here.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            device.register(space, mask, K, SIZE, POSE, progress=interrupt)
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert interrupts == [seen[0][0]]
     instances = []
     vertices, faces = mesh
