@@ -348,33 +348,16 @@ impl Registrar {
             .collect();
         let jobs = &levelled[..];
         if !aligning {
-            let runs = self.run(
-                ctx,
-                jobs,
-                Stage {
-                    params,
-                    pose_only: false,
-                    codes: None,
-                    started,
-                    first: 0,
-                    priors: None,
-                },
-                &mut on_chunk,
-            )?;
-            return self.hold_unseen(
-                ctx,
-                jobs,
-                runs,
-                Stage {
-                    params,
-                    pose_only: false,
-                    codes: None,
-                    started,
-                    first: 0,
-                    priors: None,
-                },
-                &mut on_chunk,
-            );
+            let fit = Stage {
+                params,
+                pose_only: false,
+                codes: None,
+                started,
+                first: 0,
+                priors: None,
+            };
+            let runs = self.run(ctx, jobs, fit, &mut on_chunk)?;
+            return self.hold_unseen(ctx, jobs, runs, fit, &mut on_chunk);
         }
         let align = RegisterParams {
             iterations: params.align,
@@ -445,19 +428,15 @@ impl Registrar {
                 a.evaluations += r.evaluations;
             }
         }
-        let mut refined = self.run(
-            ctx,
-            &jobs,
-            Stage {
-                params,
-                pose_only: false,
-                codes: codes.as_deref(),
-                started,
-                first: done,
-                priors: None,
-            },
-            &mut on_chunk,
-        )?;
+        let fit = Stage {
+            params,
+            pose_only: false,
+            codes: codes.as_deref(),
+            started,
+            first: done,
+            priors: None,
+        };
+        let mut refined = self.run(ctx, &jobs, fit, &mut on_chunk)?;
         if turns.len() > 1 {
             let fitted = refined.remove(0);
             refined = vec![self.check_turns(ctx, &jobs[0], params, fitted, &turns, started)?];
@@ -466,20 +445,7 @@ impl Registrar {
             &jobs,
             &refined.iter().map(|s| s.result.clone()).collect::<Vec<_>>(),
         );
-        let refined = self.hold_unseen(
-            ctx,
-            &jobs,
-            refined,
-            Stage {
-                params,
-                pose_only: false,
-                codes: None,
-                started,
-                first: done,
-                priors: None,
-            },
-            &mut on_chunk,
-        )?;
+        let refined = self.hold_unseen(ctx, &jobs, refined, fit, &mut on_chunk)?;
         Ok(aligned
             .into_iter()
             .zip(refined)
@@ -495,10 +461,11 @@ impl Registrar {
     }
 
     /// After a fit (`fitted`, one per job, the jobs at its poses): where a job's views
-    /// (two or more) hardly constrain some directions of its code ([`evidence::held_prior`]), the fit goes
-    /// on from where it stopped with those directions held by the strong prior
-    /// ([`STAGE_HELD`]); the other jobs keep their fit. `stage`: the fit's (its `first`,
-    /// the iterations before it).
+    /// (two or more) hardly constrain some directions of its code
+    /// ([`evidence::held_prior`]), the fit goes on from where it stopped with those
+    /// directions held by the strong prior
+    /// ([`STAGE_HELD`]); the other jobs keep their fit. `stage`: the fit's (its params,
+    /// start time and `first`, the iterations before it; its codes are not used).
     fn hold_unseen(
         &self,
         ctx: &Context,
