@@ -709,6 +709,50 @@ fn scale_is_found_with_depth() {
     assert!((scaled.scale - 1.2).abs() < 0.024, "scale {}", scaled.scale);
     assert_eq!(plain.scale, 1.0);
     assert!(e_scaled < 0.5 * e_plain, "{e_scaled} vs {e_plain}");
+
+    // The mask alone first (the known-pose schedule's stage before a fit with depth): its
+    // iterations are a stage of their own, the fit goes on from its code and scale.
+    use vkdr::register::{STAGE_FIT, STAGE_MASK_FIRST};
+    let first = RegisterParams {
+        mask_first: 15,
+        ..params(true)
+    };
+    assert_eq!(first.total_iterations(), 55);
+    let seen_first = registrar.register(&ctx, job, &first, |_, _| {}).unwrap();
+    let names: Vec<&str> = seen_first.stages.iter().map(|s| s.0).collect();
+    assert_eq!(names, [STAGE_MASK_FIRST, STAGE_FIT]);
+    assert_eq!(seen_first.stages[0].1, 15);
+    let counts: usize = seen_first.stages.iter().map(|s| s.1).sum();
+    assert_eq!(counts, seen_first.losses.len());
+    assert_eq!(seen_first.codes.len(), counts);
+    assert_eq!(seen_first.scales.len(), counts);
+    let e_first = rms(&seen_first.vertices, &truth);
+    eprintln!(
+        "mask first: scale {:.4}, vertex RMS {e_first:.5}",
+        seen_first.scale
+    );
+    assert!(
+        (seen_first.scale - 1.2).abs() < 0.024,
+        "scale {}",
+        seen_first.scale
+    );
+    assert!(e_first < 0.5 * e_plain, "{e_first} vs {e_plain}");
+    // Without depth there is nothing to see first: the stage does not run.
+    let mask_only = RegisterParams {
+        depth: None,
+        ..first
+    };
+    assert!(mask_only.masks_first().is_none());
+    let fitted = registrar
+        .register(
+            &ctx,
+            Job::new(&space, &mask, view(pose)),
+            &mask_only,
+            |_, _| {},
+        )
+        .unwrap();
+    assert_eq!(fitted.stages, [(STAGE_FIT, fitted.losses.len())]);
+    common::assert_no_validation_errors(&ctx);
 }
 
 /// With depth and the pose free, a start 6 cm off in depth (and 1 cm in x) reaches the

@@ -44,8 +44,9 @@ pub use job::{all_views, Job, OtherView};
 pub use observation::{Observation, Plan, PoseMode, ViewImages};
 use params::SCALE_UNIT;
 pub use params::{
-    observation_prior, RegisterParams, CODE_BOUND, DETAIL, MAX_ITERATIONS, REACH, REACH_ITERATIONS,
-    SCALE_RANGE, STAGE_ALIGN, STAGE_FIT, STAGE_HELD, STAGE_REACH, STAGE_TURNED,
+    observation_prior, RegisterParams, CODE_BOUND, DETAIL, MASK_FIRST, MAX_ITERATIONS, REACH,
+    REACH_ITERATIONS, SCALE_RANGE, STAGE_ALIGN, STAGE_FIT, STAGE_HELD, STAGE_MASK_FIRST,
+    STAGE_REACH, STAGE_TURNED,
 };
 use prepare::{onto_mask, unknown_in_front, Marked};
 use starts::{at_poses, jobs_from, relative_turns};
@@ -97,7 +98,8 @@ pub struct Registration {
     /// reach's wide depth cost, the joint fit's loss).
     pub losses: Vec<f64>,
     /// The stages that `losses`, `codes` and `scales` hold, in order: each one's name
-    /// ([`STAGE_FIT`], [`STAGE_ALIGN`], [`STAGE_REACH`], [`STAGE_TURNED`], [`STAGE_HELD`]) and how many
+    /// ([`STAGE_FIT`], [`STAGE_ALIGN`], [`STAGE_REACH`], [`STAGE_TURNED`], [`STAGE_HELD`],
+    /// [`STAGE_MASK_FIRST`]) and how many
     /// entries it holds. Their counts add up to `losses.len()`
     /// ([`Registration::iterations`]); `evaluations` counts every evaluation besides (the
     /// turns' checks, a joint fit that a turned one beat).
@@ -348,16 +350,48 @@ impl Registrar {
             .collect();
         let jobs = &levelled[..];
         if !aligning {
+            // With the pose known and depth observed, the mask alone first.
+            let masks_first = params.masks_first();
+            let mut firsts = Vec::new();
+            let mut codes = None;
+            if let Some(first) = &masks_first {
+                let stage = Stage {
+                    params: first,
+                    pose_only: false,
+                    codes: None,
+                    started,
+                    first: 0,
+                    priors: None,
+                };
+                let (results, coordinates): (Vec<Registration>, Vec<Vec<f32>>) = self
+                    .run(ctx, jobs, stage, &mut on_chunk)?
+                    .into_iter()
+                    .map(|s| (s.result, s.coordinates))
+                    .unzip();
+                firsts = results;
+                codes = Some(coordinates);
+            }
             let fit = Stage {
                 params,
                 pose_only: false,
-                codes: None,
+                codes: codes.as_deref(),
                 started,
-                first: 0,
+                first: masks_first.map_or(0, |first| first.iterations),
                 priors: None,
             };
             let runs = self.run(ctx, jobs, fit, &mut on_chunk)?;
-            return self.hold_unseen(ctx, jobs, runs, fit, &mut on_chunk);
+            let fitted = self.hold_unseen(ctx, jobs, runs, fit, &mut on_chunk)?;
+            if firsts.is_empty() {
+                return Ok(fitted);
+            }
+            return Ok(firsts
+                .into_iter()
+                .zip(fitted)
+                .map(|(first, fitted)| {
+                    let stages = vec![(STAGE_MASK_FIRST, first.losses.len())];
+                    preceded(Registration { stages, ..first }, fitted)
+                })
+                .collect());
         }
         let align = RegisterParams {
             iterations: params.align,
@@ -449,14 +483,7 @@ impl Registrar {
         Ok(aligned
             .into_iter()
             .zip(refined)
-            .map(|(a, mut r)| {
-                r.stages.splice(0..0, a.stages);
-                r.losses.splice(0..0, a.losses);
-                r.codes.splice(0..0, a.codes);
-                r.scales.splice(0..0, a.scales);
-                r.evaluations += a.evaluations;
-                r
-            })
+            .map(|(a, r)| preceded(a, r))
             .collect())
     }
 
@@ -888,6 +915,17 @@ impl Registrar {
         );
         rec.memory_barrier();
     }
+}
+
+/// `then` preceded by `first`: its stages, losses, codes and scales first, and its
+/// evaluations counted.
+fn preceded(first: Registration, mut then: Registration) -> Registration {
+    then.stages.splice(0..0, first.stages);
+    then.losses.splice(0..0, first.losses);
+    then.codes.splice(0..0, first.codes);
+    then.scales.splice(0..0, first.scales);
+    then.evaluations += first.evaluations;
+    then
 }
 
 /// Device time of one iteration's passes, milliseconds.

@@ -105,6 +105,10 @@ pub struct Args {
     /// prior after the fit (RegisterParams::hold_unseen; the schedules do).
     #[arg(long)]
     no_hold: bool,
+    /// With the pose known and --depth: iterations comparing the mask alone before the fit
+    /// (RegisterParams::mask_first; 0: none).
+    #[arg(long, default_value_t = vkdr::register::MASK_FIRST)]
+    mask_first: usize,
     /// A box in front of the left half of each object in the first view (with --depth its
     /// depth is measured and occlusion is found from the data; without, its pixels are
     /// unknown, as BOP's mask less mask_visib).
@@ -256,6 +260,7 @@ fn settings(args: &Args) -> Result<EvalSettings> {
     settings.pose_noise.code_prior = prior;
     settings.known_pose.hold_unseen &= !args.no_hold;
     settings.pose_noise.hold_unseen &= !args.no_hold;
+    settings.known_pose.mask_first = args.mask_first;
     settings.occluder = args.occluder;
     settings.table = args.table;
     if !(args.depth_holes.is_finite() && (0.0..=0.9).contains(&args.depth_holes)) {

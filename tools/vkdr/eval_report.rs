@@ -301,13 +301,16 @@ pub fn write_reports(
          (the distance in the camera frame, what a robot acting on the registration meets; the oracle's is the same in either frame); \
          as seen, both ways: the mean of that error and the one from points sampled on the registered surface to the test surface \
          (which also sees parts the registration has and the test instance has not), its ratio to the oracle's error both ways. \
-         Registration: known pose, {} for {} iterations ({} loss); pose noise, the pose aligned alone for {} iterations ({} loss), \
+         Registration: known pose, {}{} for {} iterations ({} loss); pose noise, the pose aligned alone for {} iterations ({} loss), \
          {}then pose and shape by {} for {} ({}).{}{}\n\n\
          | category | instance | oracle | space optimum | known pose | ratio | / opt. | pose noise | ratio | / opt. | worst noise trial | noise, placed | noise, as seen | chamfer oracle / known / noise | iterations known / noise | ms known / noise |{}\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|{}\n",
         settings.observation(),
         c.fx, c.fy, c.cx, c.cy, c.width, c.height, settings.distance,
         settings.elevation.0.to_degrees(), settings.elevation.1.to_degrees(), settings.trials, settings.seed, settings.dims,
         100.0 * settings.translation_noise, settings.rotation_noise.to_degrees(), eval::SAMPLE_POINTS,
+        settings.known_pose_params().masks_first().map_or(String::new(), |first| {
+            format!("the mask alone for {} iterations, then ", first.iterations)
+        }),
         known.optimizer.name(), known.iterations, known.loss.name(), noisy.align, noisy.align_loss.name(),
         settings.pose_noise_params().reach().map_or(String::new(), |reach| {
             format!(
@@ -430,6 +433,7 @@ pub fn write_reports(
             "depth": depth_json,
             "code_prior": noisy.code_prior,
             "hold_unseen": noisy.holds_unseen() && settings.views > 1,
+            "mask_first": settings.known_pose_params().masks_first().map_or(0, |first| first.iterations),
             "pose_noise_pose": {
                 "rotation_symmetric_deg": stat(&eval::Stat::of(&r.trials.iter().map(|t| t.rotation_error_symmetric.to_degrees()).collect::<Vec<_>>())),
                 "tilt_deg": stat(&eval::Stat::of(&r.trials.iter().map(|t| t.tilt.to_degrees()).collect::<Vec<_>>())),

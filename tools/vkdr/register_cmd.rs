@@ -94,6 +94,10 @@ pub struct Args {
     /// prior after the fit (RegisterParams::hold_unseen; the schedules do).
     #[arg(long)]
     no_hold: bool,
+    /// With the pose known and depth observed: iterations comparing the mask alone before
+    /// the fit (RegisterParams::mask_first; default the schedule's, 15; 0: none).
+    #[arg(long)]
+    mask_first: Option<usize>,
     /// With --optimize-pose: starts, the initial pose and it turned about the object's
     /// --up axis by +-15, +-30, ... degrees; the initial pose is registered and the
     /// others' turns are tried on its fit, the joint fit running again from a turn that
@@ -462,6 +466,7 @@ pub fn run(args: &Args) -> Result<()> {
         code_prior: crate::args::code_prior(&args.code_prior, observed.pixels())?,
         optimize_scale: args.optimize_scale,
         hold_unseen: base.hold_unseen && !args.no_hold,
+        mask_first: args.mask_first.unwrap_or(base.mask_first),
         ..base
     };
     let gravity = match &args.gravity {

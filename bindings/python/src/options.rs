@@ -185,6 +185,8 @@ pub(crate) struct Options {
     pub(crate) loss: Loss,
     pub(crate) optimizer: Option<Optimizer>,
     pub(crate) code_prior: Option<f64>,
+    pub(crate) hold_unseen: Option<bool>,
+    pub(crate) mask_first: Option<usize>,
     pub(crate) starts: Option<usize>,
     /// The object's up axis: as given, else the shape space's ([`Options::for_space`]).
     pub(crate) up: DVec3,
@@ -212,6 +214,8 @@ impl Options {
             loss: Loss::Mse,
             optimizer: None,
             code_prior: None,
+            hold_unseen: None,
+            mask_first: None,
             starts: None,
             up: DVec3::Y,
             up_given: false,
@@ -259,6 +263,8 @@ impl Options {
                         Some(w)
                     }
                 }
+                "hold_unseen" => options.hold_unseen = Some(get!("True or False")),
+                "mask_first" => options.mask_first = Some(get!("a count of iterations")),
                 "starts" => options.starts = get!("a count of starts, 1 to 8"),
                 "up" => {
                     options.up = DVec3::from_array(get!("(x, y, z)"));
@@ -340,6 +346,8 @@ impl Options {
             shading: looks.shading,
             depth: base.depth.map(|_| looks.depth_loss),
             code_prior,
+            hold_unseen: self.hold_unseen.unwrap_or(base.hold_unseen),
+            mask_first: self.mask_first.unwrap_or(base.mask_first),
             optimize_scale: self.optimize_scale,
             ..base
         };
