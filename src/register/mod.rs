@@ -352,38 +352,40 @@ impl Registrar {
         if !aligning {
             // With the pose known and depth observed, the mask alone first.
             let masks_first = params.masks_first();
-            let mut firsts = Vec::new();
-            let mut codes = None;
-            if let Some(first) = &masks_first {
-                let stage = Stage {
-                    params: first,
-                    pose_only: false,
-                    codes: None,
-                    started,
-                    first: 0,
-                    priors: None,
-                };
-                let (results, coordinates): (Vec<Registration>, Vec<Vec<f32>>) = self
-                    .run(ctx, jobs, stage, &mut on_chunk)?
+            let first: Option<(Vec<Registration>, Vec<Vec<f32>>)> = match &masks_first {
+                None => None,
+                Some(first) => Some(
+                    self.run(
+                        ctx,
+                        jobs,
+                        Stage {
+                            params: first,
+                            pose_only: false,
+                            codes: None,
+                            started,
+                            first: 0,
+                            priors: None,
+                        },
+                        &mut on_chunk,
+                    )?
                     .into_iter()
                     .map(|s| (s.result, s.coordinates))
-                    .unzip();
-                firsts = results;
-                codes = Some(coordinates);
-            }
+                    .unzip(),
+                ),
+            };
             let fit = Stage {
                 params,
                 pose_only: false,
-                codes: codes.as_deref(),
+                codes: first.as_ref().map(|(_, codes)| &codes[..]),
                 started,
                 first: masks_first.map_or(0, |first| first.iterations),
                 priors: None,
             };
             let runs = self.run(ctx, jobs, fit, &mut on_chunk)?;
             let fitted = self.hold_unseen(ctx, jobs, runs, fit, &mut on_chunk)?;
-            if firsts.is_empty() {
+            let Some((firsts, _)) = first else {
                 return Ok(fitted);
-            }
+            };
             return Ok(firsts
                 .into_iter()
                 .zip(fitted)
@@ -508,14 +510,9 @@ impl Registrar {
             ..
         } = stage;
         let mut results: Vec<Registration> = fitted.iter().map(|s| s.result.clone()).collect();
-        if !params.holds_unseen() {
-            return Ok(results);
-        }
         let mut held = Vec::new();
         for (i, (job, staged)) in jobs.iter().zip(&fitted).enumerate() {
-            // With one mask what it gains (the bowls) it loses elsewhere (the demo's
-            // bottle, seed 1's bottle): two views or more (docs/evaluation.md).
-            if job.others.is_empty() {
+            if !params.holds_unseen(1 + job.others.len()) {
                 continue;
             }
             let Some(inverse_hessian) = &staged.inverse_hessian else {
@@ -558,14 +555,8 @@ impl Registrar {
             on_chunk,
         )?;
         for (i, s) in which.into_iter().zip(again) {
-            let (first, mut r) = (&results[i], s.result);
-            r.stages = first.stages.clone();
-            r.stages.push((STAGE_HELD, r.losses.len()));
-            r.losses.splice(0..0, first.losses.iter().copied());
-            r.codes.splice(0..0, first.codes.iter().cloned());
-            r.scales.splice(0..0, first.scales.iter().copied());
-            r.evaluations += first.evaluations;
-            results[i] = r;
+            let stages = vec![(STAGE_HELD, s.result.losses.len())];
+            results[i] = preceded(results[i].clone(), Registration { stages, ..s.result });
         }
         Ok(results)
     }

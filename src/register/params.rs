@@ -178,22 +178,23 @@ impl RegisterParams {
         Ok(())
     }
 
-    /// Whether the fit is followed by the stage that holds the directions of the code the
-    /// images hardly constrain (`hold_unseen`): with BFGS (whose inverse Hessian estimate
-    /// tells them) and without depth. (It runs where a job has two views or more: with
-    /// one mask it gained on the generated bowls what it lost on the bottles.) With depth it made the generated seed-1 set worse
-    /// (known pose, 3 trials: a bottle from 1.4 to 2.0 times its oracle's error, a bowl
-    /// from 0.73 to 1.10; another bowl from 0.46 to 0.42).
-    pub fn holds_unseen(&self) -> bool {
-        self.hold_unseen && self.optimizer == Optimizer::Bfgs && self.depth.is_none()
+    /// Whether the fit of a job with `views` views is followed by the stage that holds the
+    /// directions of the code the images hardly constrain (`hold_unseen`): with BFGS (whose
+    /// inverse Hessian estimate tells them), without depth, and with two views or more
+    /// (with one mask it gained on the generated bowls what it lost on the bottles). With
+    /// depth it made the generated seed-1 set worse (known pose, 3 trials: a bottle from
+    /// 1.4 to 2.0 times its oracle's error, a bowl from 0.73 to 1.10; another bowl from
+    /// 0.46 to 0.42).
+    pub fn holds_unseen(&self, views: usize) -> bool {
+        self.hold_unseen && self.optimizer == Optimizer::Bfgs && self.depth.is_none() && views > 1
     }
 
     /// Iterations at most, the pose alignment's included (and with depth and z free, the
     /// stage that brings the aligned pose to the measured depth; with `hold_unseen`, the
-    /// fit's again for the held stage).
+    /// fit's again for the held stage, as with two views or more).
     pub fn total_iterations(&self) -> usize {
         let aligned = self.pose_every > 0 && self.align > 0;
-        let held = self.holds_unseen();
+        let held = self.holds_unseen(2);
         self.iterations
             + if aligned { self.align } else { 0 }
             + self.reach().map_or(0, |reach| reach.iterations)

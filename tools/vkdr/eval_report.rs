@@ -288,6 +288,11 @@ pub fn write_reports(
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let c = &settings.camera;
     let (known, noisy) = (&settings.known_pose, &settings.pose_noise);
+    let held = noisy.holds_unseen(settings.views);
+    let mask_first = settings
+        .known_pose_params()
+        .masks_first()
+        .map(|first| first.iterations);
     let mut md = format!(
         "# Registration error (Table 1)\n\nObserved: {}.\n\nDevice: {device}. Camera: fx {} fy {} cx {} cy {}, {}x{} px; object at {} m; views from the hemisphere of each category's up axis (info.json) \
          (elevation {:.0}-{:.0} deg) at random azimuth; {} trials per instance (seed {}); shape spaces of up to {} dimensions (fewer where the training instances span fewer). Pose noise: uniform +-{} cm in x and y, +-{:.0} deg about each axis. \
@@ -308,8 +313,8 @@ pub fn write_reports(
         c.fx, c.fy, c.cx, c.cy, c.width, c.height, settings.distance,
         settings.elevation.0.to_degrees(), settings.elevation.1.to_degrees(), settings.trials, settings.seed, settings.dims,
         100.0 * settings.translation_noise, settings.rotation_noise.to_degrees(), eval::SAMPLE_POINTS,
-        settings.known_pose_params().masks_first().map_or(String::new(), |first| {
-            format!("the mask alone for {} iterations, then ", first.iterations)
+        mask_first.map_or(String::new(), |first| {
+            format!("the mask alone for {first} iterations, then ")
         }),
         known.optimizer.name(), known.iterations, known.loss.name(), noisy.align, noisy.align_loss.name(),
         settings.pose_noise_params().reach().map_or(String::new(), |reach| {
@@ -326,7 +331,7 @@ pub fn write_reports(
                 "{} loss, plus a code prior of weight {:.3e} in training SD, both conditions{}",
                 noisy.loss.name(),
                 noisy.code_prior,
-                if noisy.holds_unseen() && settings.views > 1 {
+                if held {
                     format!(
                         "; after the fit the directions of the code the images hardly constrain (curvature below {} times the prior's) \
                          are held by a prior {} times as strong and the fit goes on",
@@ -432,8 +437,8 @@ pub fn write_reports(
             "shading": shading_json,
             "depth": depth_json,
             "code_prior": noisy.code_prior,
-            "hold_unseen": noisy.holds_unseen() && settings.views > 1,
-            "mask_first": settings.known_pose_params().masks_first().map_or(0, |first| first.iterations),
+            "hold_unseen": held,
+            "mask_first": mask_first.unwrap_or(0),
             "pose_noise_pose": {
                 "rotation_symmetric_deg": stat(&eval::Stat::of(&r.trials.iter().map(|t| t.rotation_error_symmetric.to_degrees()).collect::<Vec<_>>())),
                 "tilt_deg": stat(&eval::Stat::of(&r.trials.iter().map(|t| t.tilt.to_degrees()).collect::<Vec<_>>())),
