@@ -179,6 +179,29 @@ def test_silhouette_loss_under_torch_func_grad(device, scene):
     assert np.array_equal(grad.numpy(), grad_vertices.astype(np.float64))
 
 
+def test_silhouette_loss_under_torch_func_vmap(device, scene):
+    """vmap over poses, over vertices, and of grad, gives each element's loss and
+    gradients as one call does."""
+    vertices, faces, mask = scene
+    poses = np.stack([POSE, POSE + np.array([0.003, 0.0, 0.01, 0.05, -0.04, 0.1]), POSE - 0.002])
+    shapes = np.stack([vertices, vertices * 1.05])
+    f = lambda v, p: silhouette_loss(v, p, faces, K, SIZE, mask, device=device)
+    each = [device.loss_and_grad(vertices, faces, K, SIZE, p, mask) for p in poses]
+    losses = torch.func.vmap(f, in_dims=(None, 0))(torch.tensor(vertices), torch.tensor(poses))
+    assert losses.shape == (3,)
+    assert np.allclose(losses.numpy(), [loss for loss, _, _ in each], rtol=1e-6, atol=0)
+    grads = torch.func.vmap(torch.func.grad(f, argnums=1), in_dims=(None, 0))(torch.tensor(vertices), torch.tensor(poses))
+    assert np.array_equal(grads.numpy(), np.stack([g for _, _, g in each]))
+    by_shape = torch.func.vmap(torch.func.grad(f), in_dims=(0, None))(torch.tensor(shapes), torch.tensor(POSE))
+    for got, v in zip(by_shape.numpy(), shapes):
+        _, grad_vertices, _ = device.loss_and_grad(v, faces, K, SIZE, POSE, mask)
+        assert np.array_equal(got, grad_vertices.astype(np.float64))
+    # grad of a sum over a vmapped batch: each pose's gradient.
+    p = torch.tensor(poses, requires_grad=True)
+    torch.func.vmap(f, in_dims=(None, 0))(torch.tensor(vertices), p).sum().backward()
+    assert np.array_equal(p.grad.numpy(), np.stack([g for _, _, g in each]))
+
+
 def test_silhouette_composes_to_vkdr_loss(device, scene):
     """rasterize -> silhouette -> a mean squared error in torch is vkdr's own mse loss, its
     value and its exact edge gradients (float32 rounding), for the vertices and the pose;

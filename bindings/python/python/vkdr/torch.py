@@ -178,7 +178,8 @@ def interpolate(attributes, fragments, faces):
 class SilhouetteLoss(torch.autograd.Function):
     """loss(vertices, pose) of `vkdr.Device.loss_and_grad`, differentiable in both, once
     (vkdr's gradients have no graph: a second derivative is refused, not wrong). Works
-    under `torch.func.grad`, not `vmap`."""
+    under `torch.func.grad` and `torch.func.vmap` over the vertices and the pose (one
+    vkdr call per batch element: the batch is a loop, not one dispatch)."""
 
     @staticmethod
     def forward(vertices, pose, device, faces, K, size, mask, options):
@@ -198,6 +199,22 @@ class SilhouetteLoss(torch.autograd.Function):
         ctx.save_for_backward(grad_vertices, grad_pose, inputs[0], inputs[1])
 
     @staticmethod
+    def vmap(info, in_dims, vertices, pose, device, faces, K, size, mask, options):
+        """`torch.func.vmap`'s rule: the function of each element of the batch (the vertices',
+        the pose's or both, along their mapped dimension), stacked along dimension 0."""
+        if any(dim is not None for dim in torch.utils._pytree.tree_leaves(in_dims[2:])):
+            raise ValueError("vkdr.torch.silhouette_loss: vmap maps over the vertices and the pose only")
+        vertices_dim, pose_dim = in_dims[:2]
+        element = lambda x, dim, i: x if dim is None else x.select(dim, i)
+        outputs = [
+            SilhouetteLoss.apply(
+                element(vertices, vertices_dim, i), element(pose, pose_dim, i), device, faces, K, size, mask, options
+            )
+            for i in range(info.batch_size)
+        ]
+        return tuple(torch.stack(column) for column in zip(*outputs)), (0, 0, 0)
+
+    @staticmethod
     def backward(ctx, grad, _grad_vertices, _grad_pose):
         grad_vertices, grad_pose, vertices, pose = ctx.saved_tensors
         grads = grad * grad_vertices, grad * grad_pose
@@ -210,6 +227,8 @@ class _FirstOrderOnly(torch.autograd.Function):
     """The identity on a gradient, made to depend on what it is the gradient in (the
     vertices and the pose), whose derivative is refused: vkdr's gradients have no graph,
     so a second derivative through them would be silently wrong."""
+
+    generate_vmap_rule = True  # forward is torch's own clone
 
     @staticmethod
     def forward(x, *depends_on):
