@@ -19,8 +19,7 @@ use vkdr::camera::Pose;
 use vkdr::error::Result;
 use vkdr::gpu::Context;
 use vkdr::mesh::{centroid, Mesh};
-use vkdr::raster::View;
-use vkdr::register::{Gravity, Job, Plan, RegisterParams, Registrar};
+use vkdr::register::Registrar;
 use vkdr::shape::ShapeSpace;
 
 pub use crate::metrics::{
@@ -31,9 +30,11 @@ pub use crate::reference::{space_optimum, surface_sample, Optimum, Reference, SA
 
 mod scene;
 mod settings;
+mod trial;
 
 pub use scene::*;
 pub use settings::*;
+use trial::{register_trial, Measure, Registered};
 
 /// Mean over `a` of the distance to the nearest point of `b`.
 pub fn mean_nearest(a: &[DVec3], b: &[DVec3]) -> f64 {
@@ -302,20 +303,19 @@ pub fn evaluate_instance(
         asymmetric,
         ..
     } = reference;
-    let symmetric = *symmetric;
-    let test_vertices = test.points();
-    let (test_centre, test_size) = surface_extent(&test_vertices, test.triangles());
-    let error = |vertices: &[DVec3]| surface_error(truth, vertices, space.canonical.triangles());
-    // The mean of the error both ways, test to shape (`forward`, already measured) and
-    // shape to test.
-    let both_ways = |vertices: &[DVec3], forward: f64| -> Result<f64> {
-        let reverse = reverse_error(vertices, space.canonical.triangles(), test, hash(name))?;
-        Ok(0.5 * (forward + reverse))
+    let measure = Measure {
+        space,
+        name,
+        test,
+        truth,
+        settings,
+        symmetric: *symmetric,
+        asymmetric,
     };
+    let test_vertices = test.points();
     let mut rng = Rng::new(settings.seed ^ hash(name));
     let (mut known_ch, mut noisy_ch) = (vec![], vec![]);
     let mut trials: Vec<Trial> = Vec::new();
-    let axes = extent_axes(test);
     let mut known_once: Option<vkdr::register::Registration> = None;
     let mut from_truth = Vec::new();
     let (mut iterations, mut ms, mut noise_iterations, mut noise_ms) =
@@ -330,179 +330,48 @@ pub fn evaluate_instance(
     let mut curve_noise = vec![0.0; pose_noise.total_iterations()];
     for trial in 0..settings.trials {
         progress(trial, settings.trials);
-        let TrialScene {
-            azimuth,
-            elevation,
-            pose,
-            view,
-            others,
-            observed,
-        } = match source {
+        let scene = match source {
             TrialSource::Rendered => {
                 render_trial(ctx, registrar, test, table.as_ref(), settings, &mut rng)?
             }
             TrialSource::Frame { scene, .. } => scene.clone(),
         };
-        let observation = vkdr::Observation {
-            camera: view.camera,
-            others,
-            mask: observed.mask,
-            depth: observed.depth,
-            shaded: observed.shaded,
-        };
-        let true_up = pose.rotation_matrix() * settings.up;
-        let visible: Vec<f32> = observation
-            .first_mask()
-            .iter()
-            .map(|&m| m.max(0.0))
-            .collect();
-        let mut gravity_fallback = false;
-        let gravity = match settings.gravity {
-            None => None,
-            Some(GravitySource::Known) => Some(Gravity {
-                up: settings.up,
-                direction: true_up,
-                tolerance: settings.tilt_tolerance,
-            }),
-            Some(GravitySource::FromDepth) => {
-                if observation.depth.is_none() {
-                    return Err(vkdr::Error::InvalidInput(
-                        "gravity from the depth needs depth".into(),
-                    ));
-                }
-                match Gravity::from_depth(&observation, settings.up, settings.tilt_tolerance) {
-                    Ok((gravity, _)) => Some(gravity),
-                    Err(_) if settings.gravity_fallback => {
-                        gravity_fallback = true;
-                        None
-                    }
-                    Err(e) => return Err(e),
-                }
-            }
-        };
-        let job = |view: View| Job {
-            gravity,
-            ..observation.job(space, view.pose)
-        };
-
-        // A frame is the same in every trial: its registration with the pose known once.
-        let result = match (&known_once, source) {
-            (Some(result), TrialSource::Frame { .. }) => result.clone(),
-            _ => registrar.register(ctx, job(view), &known_pose, |_, _| {})?,
-        };
-        if matches!(source, TrialSource::Frame { .. }) {
-            known_once = Some(result.clone());
-        }
-        let known_error = error(&result.vertices);
-        let known_centre = surface_extent(&result.vertices, space.canonical.triangles()).0;
-        let z_error_known = (pose.rotation_matrix() * (known_centre - test_centre)).z;
-        if best_known.as_ref().is_none_or(|(e, _)| known_error < *e) {
-            best_known = Some((known_error, result.code.clone()));
-        }
-        let known_pose_loss = result.loss;
-        let known_on_bound = result.on_bound;
-        let known_code_sd = largest_sd(space, &result.code);
-        known_ch.push(chamfer(&test_vertices, &result.vertices));
-        iterations.push(result.evaluations as f64);
-        ms.push(result.milliseconds);
-        ms_per_iteration.push(result.milliseconds / result.evaluations as f64);
-        accumulate_curve(&mut curve_known, space, truth, &result, settings.trials)?;
-
-        if settings.from_truth {
-            let params = RegisterParams {
-                align: 0,
-                ..pose_noise
-            };
-            let result = registrar.register(ctx, job(view), &params, |_, _| {})?;
-            from_truth.push(error(&result.vertices));
-        }
-
-        let start = noisy_pose(
-            pose,
+        let registered = register_trial(
+            ctx,
+            registrar,
+            space,
+            settings,
+            source,
+            scene,
+            &mut known_once,
             &mut rng,
-            settings.translation_noise,
-            settings.rotation_noise,
-        );
-        // The noisy start and it turned about the up axis by the rotation noise.
-        let plan = Plan {
-            starts: settings.starts,
-            turn: settings.rotation_noise,
-            gravity,
-            ..Plan::new(start, settings.up, pose_noise)
-        };
-        let result = registrar.register_observation(ctx, space, &observation, &plan, |_, _| {})?;
-        let (rotation_error, translation_error) = pose_error(result.pose, pose);
-        let rotation_error_symmetric = if symmetric {
-            symmetric_rotation_error(result.pose, pose, settings.up)
-        } else {
-            rotation_error
-        };
-        let seen = as_seen(&result.vertices, result.pose, pose);
-        let (seen_centre, seen_size) = surface_extent(&seen, space.canonical.triangles());
-        let pose_noise_seen = error(&seen);
-        let registered_up = result.pose.rotation_matrix() * settings.up;
-        let symmetric_in_view = symmetric
-            || crate::metrics::seen_share(
-                asymmetric,
-                pose,
-                &view.camera,
-                &visible,
-                observation.first_depth(),
-            ) < 0.1;
-        let triangles = space.canonical.triangles();
-        let iou = crate::metrics::iou(
-            &crate::metrics::OrientedBox::of(&result.vertices, result.pose),
-            &crate::metrics::OrientedBox::of(&test_vertices, pose),
-            settings.up,
-            symmetric_in_view,
-        );
-        trials.push(Trial {
-            azimuth,
-            elevation,
-            long_axis_angle: line_of_sight_angle(pose, axes[0]),
-            short_axis_angle: line_of_sight_angle(pose, axes[2]),
-            known_pose: known_error,
-            pose_noise: error(&result.vertices),
-            pose_noise_placed: error(&placed_like(&result.vertices, oracle_vertices)),
-            pose_noise_seen,
-            pose_noise_seen_both_ways: both_ways(&seen, pose_noise_seen)?,
-            known_pose_loss,
-            pose_noise_loss: result.loss,
-            rotation_error,
-            rotation_error_symmetric,
-            translation_error,
-            known_pose_on_bound: known_on_bound,
-            pose_noise_on_bound: result.on_bound,
-            tilt: angle_between(registered_up, true_up),
-            z_error: (pose.rotation_matrix() * (seen_centre - test_centre)).z,
-            size: seen_size / test_size,
-            z_error_origin: result.pose.translation.z - pose.translation.z,
-            z_error_known,
-            scale: result.scale,
-            gravity_error: gravity.map_or(0.0, |g| angle_between(g.direction, true_up)),
-            gravity_fallback,
-            add_s: crate::metrics::add_s(
-                &test_vertices,
-                pose,
-                &result.vertices,
-                triangles,
-                result.pose,
-            ),
-            centroid_error: (seen_centre - test_centre).length(),
-            rotation_error_nocs: crate::metrics::rotation_error(
-                result.pose,
-                pose,
-                settings.up,
-                symmetric_in_view,
-            ),
-            iou,
-            known_pose_code_sd: known_code_sd,
-            pose_noise_code_sd: largest_sd(space, &result.code),
-        });
-        noisy_ch.push(chamfer(&test_vertices, &result.vertices));
-        noise_iterations.push(result.evaluations as f64);
-        noise_ms.push(result.milliseconds);
-        accumulate_curve(&mut curve_noise, space, truth, &result, settings.trials)?;
+        )?;
+        let measured = measure.trial(&registered, oracle_vertices)?;
+        let Registered {
+            known,
+            from_truth: truth_started,
+            noisy,
+            ..
+        } = registered;
+        if best_known
+            .as_ref()
+            .is_none_or(|(e, _)| measured.known_pose < *e)
+        {
+            best_known = Some((measured.known_pose, known.code.clone()));
+        }
+        known_ch.push(chamfer(&test_vertices, &known.vertices));
+        iterations.push(known.evaluations as f64);
+        ms.push(known.milliseconds);
+        ms_per_iteration.push(known.milliseconds / known.evaluations as f64);
+        accumulate_curve(&mut curve_known, space, truth, &known, settings.trials)?;
+        if let Some(result) = truth_started {
+            from_truth.push(measure.error(&result.vertices));
+        }
+        noisy_ch.push(chamfer(&test_vertices, &noisy.vertices));
+        noise_iterations.push(noisy.evaluations as f64);
+        noise_ms.push(noisy.milliseconds);
+        accumulate_curve(&mut curve_noise, space, truth, &noisy, settings.trials)?;
+        trials.push(measured);
     }
     progress(settings.trials, settings.trials);
     // The space optimum from the reference's starts, and from the best known-pose
@@ -517,7 +386,7 @@ pub fn evaluate_instance(
         );
     }
     let stat = |of: fn(&Trial) -> f64| Stat::of(&trials.iter().map(of).collect::<Vec<_>>());
-    let oracle = error(oracle_vertices);
+    let oracle = measure.error(oracle_vertices);
     Ok(Row {
         category: category.into(),
         instance: name.into(),
@@ -530,7 +399,7 @@ pub fn evaluate_instance(
         pose_noise_worst: trials.iter().map(|t| t.pose_noise).fold(0.0, f64::max),
         pose_noise_placed: stat(|t| t.pose_noise_placed),
         pose_noise_seen: stat(|t| t.pose_noise_seen),
-        oracle_both_ways: both_ways(oracle_vertices, oracle)?,
+        oracle_both_ways: measure.both_ways(oracle_vertices, oracle)?,
         pose_noise_seen_both_ways: stat(|t| t.pose_noise_seen_both_ways),
         pose_noise: stat(|t| t.pose_noise),
         pose_noise_chamfer: Stat::of(&noisy_ch),
