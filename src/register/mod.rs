@@ -13,15 +13,12 @@
 use std::ops::ControlFlow;
 use std::time::Instant;
 
-use bytemuck::{Pod, Zeroable};
-use glam::{DMat3, DVec3};
+use glam::DVec3;
 
 use crate::cpd::linalg::Matrix;
 use crate::diff::DiffRenderer;
 use crate::error::{Error, Result};
-use crate::gpu::{
-    spans, Binding, ComputePipeline, Context, Groups, Recorder, Recording, Timestamps, LOOP_LIMIT,
-};
+use crate::gpu::{ComputePipeline, Context};
 use crate::raster::View;
 use crate::shaders;
 use crate::Pose;
@@ -29,6 +26,7 @@ use crate::Pose;
 mod evidence;
 pub use evidence::{HELD_BELOW, HOLD};
 mod gravity;
+mod iterate;
 mod job;
 mod nearest;
 mod observation;
@@ -40,6 +38,7 @@ mod starts;
 mod task;
 
 pub use gravity::{Gravity, GRAVITY_WEIGHT};
+pub use iterate::PassTimes;
 pub use job::{all_views, Job, OtherView};
 pub use observation::{Observation, Plan, PoseMode, ViewImages};
 use params::SCALE_UNIT;
@@ -54,25 +53,11 @@ pub use starts::{
     check_starts, start_turns, symmetry_pivot, turned_starts, Starts, DEFAULT_STARTS, MAX_STARTS,
     START_TURN, TURN_GAIN, TURN_ITERATIONS,
 };
-use task::{Stage, Staged, Task};
+use task::{Stage, Staged};
 
 pub use optimizer::Optimizer;
-use optimizer::{OptimizerConstants, Optimizers, StateLayout};
-use region::Cut;
+use optimizer::Optimizers;
 pub use region::Region;
-
-/// Vertex coordinates one dispatch of the latent-gradient pass sums (64 invocations a
-/// workgroup, each looping over a 64th; see [`LOOP_LIMIT`]).
-const LATENT_SPAN: u32 = 64 * (LOOP_LIMIT / 4);
-
-#[repr(C)]
-#[derive(Clone, Copy, Pod, Zeroable)]
-struct DeformConstants {
-    vertex_count: u32,
-    dims: u32,
-    latent_at: u32,
-}
-const _: () = assert!(shaders::DEFORM_COMP.takes::<DeformConstants>());
 
 /// The registration pipelines (besides the differentiable renderer's).
 pub struct Registrar {
@@ -560,352 +545,6 @@ impl Registrar {
         }
         Ok(results)
     }
-
-    /// After the joint fit from the first start: the fitted shape and pose turned as each
-    /// start was turned from the first (`turns`, object frame, the first the identity),
-    /// about the fitted shape's own axis, each scored by its loss at one evaluation. A
-    /// mask alone cannot choose among the starts before the fit (a mug's handle is a few
-    /// pixels against the body's hundreds: aligned starts' losses differ by about 0.1%);
-    /// the fitted shape can. Where a turned pose's loss is [`TURN_GAIN`] below the fit's,
-    /// the joint fit runs again from it with the fitted code, and the lower final loss is
-    /// kept. Costs one evaluation per turn, and a second joint fit only where a turn is
-    /// better.
-    fn check_turns(
-        &self,
-        ctx: &Context,
-        job: &Job,
-        params: &RegisterParams,
-        fitted: Staged,
-        turns: &[DMat3],
-        started: Instant,
-    ) -> Result<Staged> {
-        let pose = fitted.result.pose;
-        let r = pose.rotation_matrix();
-        // Turned about the fitted shape's own axis, not the frame's origin: a bounding
-        // box centred mug has its body's axis a centimetre or two from the origin.
-        let pivot = turns
-            .iter()
-            .map(|turn| glam::DQuat::from_mat3(turn).to_axis_angle())
-            .find(|(_, angle)| angle.abs() > 1e-6)
-            .map_or(DVec3::ZERO, |(axis, _)| {
-                symmetry_pivot(&fitted.result.vertices, axis)
-            });
-        let turned: Vec<Job> = turns
-            .iter()
-            .map(|turn| Job {
-                view: View {
-                    pose: Pose {
-                        translation: pose.translation + r * (pivot - *turn * pivot),
-                        rotation: glam::DQuat::from_mat3(&(r * *turn)).to_scaled_axis(),
-                    },
-                    ..job.view
-                },
-                ..*job
-            })
-            .collect();
-        let score = RegisterParams {
-            iterations: TURN_ITERATIONS,
-            ..*params
-        };
-        let codes = vec![fitted.coordinates.clone(); turned.len()];
-        let scored = self.run(
-            ctx,
-            &turned,
-            Stage {
-                params: &score,
-                pose_only: true,
-                codes: Some(&codes),
-                started,
-                first: 0,
-                priors: None,
-            },
-            &mut |_, _| {},
-        )?;
-        let loss = |s: &Staged| s.result.losses.first().copied().unwrap_or(f64::INFINITY);
-        let (best, best_loss) = scored
-            .iter()
-            .enumerate()
-            .map(|(i, s)| (i, loss(s)))
-            .min_by(|a, b| a.1.total_cmp(&b.1))
-            .expect("at least one turn");
-        let mut fitted = fitted;
-        fitted.result.evaluations += scored.iter().map(|s| s.result.evaluations).sum::<usize>();
-        if best == 0 || best_loss > (1.0 - TURN_GAIN) * loss(&scored[0]) {
-            fitted.result.milliseconds = started.elapsed().as_secs_f64() * 1e3;
-            return Ok(fitted);
-        }
-        let again = self
-            .run(
-                ctx,
-                &turned[best..best + 1],
-                Stage {
-                    params,
-                    pose_only: false,
-                    codes: Some(&codes[..1]),
-                    started,
-                    first: 0,
-                    priors: None,
-                },
-                &mut |_, _| {},
-            )?
-            .remove(0);
-        let evaluations = fitted.result.evaluations + again.result.evaluations;
-        let mut kept = if again.result.loss < fitted.result.loss {
-            Staged {
-                result: Registration {
-                    stages: vec![(STAGE_TURNED, again.result.losses.len())],
-                    ..again.result
-                },
-                ..again
-            }
-        } else {
-            fitted
-        };
-        kept.result.evaluations = evaluations;
-        kept.result.milliseconds = started.elapsed().as_secs_f64() * 1e3;
-        Ok(kept)
-    }
-
-    /// One stage of `register_batch` ([`Stage`]).
-    fn run(
-        &self,
-        ctx: &Context,
-        jobs: &[Job],
-        stage: Stage,
-        on_chunk: &mut impl OnChunk,
-    ) -> Result<Vec<Staged>> {
-        // Only the region around the mask and the jobs' silhouettes is rendered and
-        // compared where that is a small part of the image ([`Region`]); a stage whose fit
-        // ended at the region's border (where the whole image would have compared pixels
-        // the region has not) runs again on the whole image, at the region's step.
-        let mut run_in = |region: Option<&Region>| {
-            let Some(region) = region else {
-                return self.run_whole(ctx, jobs, stage, on_chunk);
-            };
-            let cut: Vec<Cut> = jobs.iter().map(|job| region.cut(job)).collect();
-            let cut_jobs: Vec<Job> = jobs.iter().zip(&cut).map(|(j, c)| c.job(j)).collect();
-            self.run_whole(ctx, &cut_jobs, stage, on_chunk)
-        };
-        let Some(region) = Region::of_interest(jobs, stage.params.detail)? else {
-            return run_in(None);
-        };
-        let staged = run_in(Some(&region))?;
-        if staged
-            .iter()
-            .zip(jobs)
-            .all(|(s, job)| region.holds(job, &s.result))
-        {
-            return Ok(staged);
-        }
-        run_in(Region::whole(&jobs[0].view.camera, region.step).as_ref())
-    }
-
-    /// [`Registrar::run`] on the jobs' whole images.
-    fn run_whole(
-        &self,
-        ctx: &Context,
-        jobs: &[Job],
-        stage: Stage,
-        on_chunk: &mut impl OnChunk,
-    ) -> Result<Vec<Staged>> {
-        let Stage {
-            params,
-            pose_only,
-            codes,
-            started,
-            first,
-            priors,
-        } = stage;
-        if jobs.is_empty() {
-            return Ok(Vec::new());
-        }
-        let mut tasks = jobs
-            .iter()
-            .enumerate()
-            .map(|(i, job)| {
-                let prior = priors.map(|p| &p[i]);
-                Task::new(ctx, job, params, codes.map(|c| &c[i][..]), prior)
-            })
-            .collect::<Result<Vec<_>>>()?;
-        let mut rec = Recorder::new(ctx)?;
-        for task in &tasks {
-            task.scene.record_prepare(&self.renderer, &mut rec)?;
-        }
-        ctx.submit_and_wait(rec)?;
-
-        let chunk = params.check_every.clamp(1, params.iterations);
-        // The last recording, replayed while the same jobs run chunks of the same length.
-        let mut cached: Option<(Vec<usize>, usize, Recording)> = None;
-        loop {
-            let active: Vec<usize> = (0..tasks.len()).filter(|&i| tasks[i].active).collect();
-            if active.is_empty() {
-                break;
-            }
-            let n = active
-                .iter()
-                .map(|&i| chunk.min(params.iterations - tasks[i].done))
-                .min()
-                .unwrap_or(chunk);
-            let reusable = matches!(&cached, Some((a, c, _)) if *a == active && *c == n);
-            if !reusable {
-                let mut rec = Recorder::new(ctx)?;
-                for _ in 0..n {
-                    for &i in &active {
-                        self.record_iteration(&mut rec, &tasks[i], params, pose_only, None)?;
-                    }
-                }
-                cached = Some((active.clone(), n, rec.finish()?));
-            }
-            if let Some((_, _, recording)) = &cached {
-                ctx.replay(recording)?;
-            }
-            let mut latest = 0.0;
-            for &i in &active {
-                let task = &mut tasks[i];
-                task.done += n;
-                latest += task.check_plateau(params)? / active.len() as f64;
-                if !task.active {
-                    task.milliseconds = started.elapsed().as_secs_f64() * 1e3;
-                }
-            }
-            let most = tasks.iter().map(|t| t.done).max().unwrap_or(0);
-            if on_chunk.chunk(first + most, latest).is_break() {
-                return Err(Error::Stopped);
-            }
-        }
-        tasks.iter().map(|task| task.staged(params)).collect()
-    }
-
-    /// GPU milliseconds of each pass of one iteration, for `repeats` iterations of `job`
-    /// (each submitted alone, so that every one is timed from the device's timestamps).
-    pub fn profile(
-        &self,
-        ctx: &Context,
-        job: &Job,
-        params: &RegisterParams,
-        repeats: usize,
-    ) -> Result<Vec<PassTimes>> {
-        let task = Task::new(ctx, job, params, None, None)?;
-        let mut rec = Recorder::new(ctx)?;
-        task.scene.record_prepare(&self.renderer, &mut rec)?;
-        ctx.submit_and_wait(rec)?;
-        let outer = Timestamps::new(ctx, 4)?;
-        let inner = Timestamps::new(ctx, 3)?;
-        let mut times = Vec::new();
-        for _ in 0..repeats.min(params.iterations) {
-            let mut rec = Recorder::new(ctx)?;
-            self.record_iteration(&mut rec, &task, params, false, Some((&outer, &inner)))?;
-            ctx.submit_and_wait(rec)?;
-            let (o, i) = (outer.read_ms()?, inner.read_ms()?);
-            times.push(PassTimes {
-                deform: o[1] - o[0],
-                forward: i[1] - i[0],
-                backward: i[2] - i[1],
-                update: o[3] - o[2],
-                total: o[3] - o[0],
-            });
-        }
-        Ok(times)
-    }
-
-    /// Records one iteration of one registration; with `timing`, the outer timestamps
-    /// mark start, after deform, after the renderer's passes and end, the inner ones the
-    /// renderer's own (see [`Scene::record`]).
-    fn record_iteration(
-        &self,
-        rec: &mut Recorder,
-        task: &Task,
-        params: &RegisterParams,
-        pose_only: bool,
-        timing: Option<(&Timestamps, &Timestamps)>,
-    ) -> Result<()> {
-        let (m, k) = (task.m, task.dims);
-        let scene = &task.scene;
-        if let Some((outer, _)) = timing {
-            rec.reset_timestamps(outer);
-            rec.timestamp(outer, 0);
-        }
-        rec.run_compute(
-            &self.deform,
-            &[
-                Binding::buffer(&task.base),
-                Binding::buffer(&task.basis),
-                Binding::buffer(&task.state),
-                Binding::buffer(scene.mesh().positions()),
-            ],
-            &DeformConstants {
-                vertex_count: m as u32,
-                dims: k as u32,
-                latent_at: StateLayout::new(k, 0).latent,
-            },
-            Groups::Count((m as u32).div_ceil(64), 1, 1),
-        );
-        rec.memory_barrier();
-        if let Some((outer, _)) = timing {
-            rec.timestamp(outer, 1);
-        }
-        scene.record(&self.renderer, rec, timing.map(|t| t.1))?;
-        self.record_rig(rec, task, 0);
-        if let Some((outer, _)) = timing {
-            rec.timestamp(outer, 2);
-        }
-        rec.fill_buffer(&task.grad_latent, 0);
-        rec.memory_barrier();
-        for (first, end) in spans(3 * m as u32, LATENT_SPAN) {
-            rec.run_compute(
-                &self.latent_gradient,
-                &[
-                    Binding::buffer(&task.basis),
-                    Binding::buffer(scene.vertex_gradient()),
-                    Binding::buffer(&task.grad_latent),
-                ],
-                &[m as u32, k as u32, first, end],
-                Groups::Count(1, 1, k as u32),
-            );
-            rec.memory_barrier();
-        }
-        self.optimizers.record_step(
-            rec,
-            &OptimizerConstants::new(k, params, pose_only),
-            params.optimizer,
-            [
-                Binding::buffer(&task.state),
-                Binding::buffer(&task.grad_latent),
-                Binding::buffer(scene.pose_gradient()),
-                Binding::buffer(scene.loss_stats()),
-                Binding::buffer(scene.views().views()),
-            ],
-        );
-        rec.memory_barrier();
-        self.record_rig(rec, task, 1);
-        if let Some((outer, _)) = timing {
-            rec.timestamp(outer, 3);
-        }
-        Ok(())
-    }
-
-    /// With several views, one stage of `glsl/rig.comp` (and a barrier after it): 0 sums
-    /// the views' pose gradients and losses into the first view's, 1 moves the other views
-    /// with the first.
-    fn record_rig(&self, rec: &mut Recorder, task: &Task, stage: u32) {
-        let Some(rig) = &task.rig else {
-            return;
-        };
-        let scene = &task.scene;
-        let views = scene.views().count();
-        rec.run_compute(
-            &self.rig,
-            &[
-                Binding::buffer(scene.views().views()),
-                Binding::buffer(scene.pose_gradient()),
-                Binding::buffer(scene.loss_stats()),
-                Binding::buffer(rig),
-            ],
-            &[views, stage],
-            Groups::Count(views.div_ceil(64), 1, 1),
-        );
-        rec.memory_barrier();
-    }
 }
 
 /// `then` preceded by `first`: its stages, losses, codes and scales first, and its
@@ -917,19 +556,4 @@ fn preceded(first: Registration, mut then: Registration) -> Registration {
     then.scales.splice(0..0, first.scales);
     then.evaluations += first.evaluations;
     then
-}
-
-/// Device time of one iteration's passes, milliseconds.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct PassTimes {
-    /// C + d0 + B s.
-    pub deform: f64,
-    /// Rasterize, classify, antialias, loss.
-    pub forward: f64,
-    /// Backward to the vertices and the pose.
-    pub backward: f64,
-    /// dL/ds and the optimiser step.
-    pub update: f64,
-    /// The whole iteration, from the start of deform to the end of the update.
-    pub total: f64,
 }
