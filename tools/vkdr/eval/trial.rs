@@ -189,18 +189,11 @@ impl Measure<'_> {
     /// What one trial's registrations found, against the test instance at its true pose.
     pub fn trial(&self, registered: &Registered, oracle_vertices: &[DVec3]) -> Result<Trial> {
         let Registered {
-            azimuth,
-            elevation,
-            pose,
-            view,
-            observation,
-            gravity,
-            gravity_fallback,
             known,
             noisy: result,
             ..
         } = registered;
-        let (pose, up) = (*pose, self.settings.up);
+        let (pose, up) = (registered.pose, self.settings.up);
         let triangles = self.space.canonical.triangles();
         let test_vertices = self.test.points();
         let (test_centre, test_size) = surface_extent(&test_vertices, self.test.triangles());
@@ -215,7 +208,8 @@ impl Measure<'_> {
             rotation_error
         };
         // The first view's mask, unknown pixels (negative) as 0.
-        let visible: Vec<f32> = observation
+        let visible: Vec<f32> = registered
+            .observation
             .first_mask()
             .iter()
             .map(|&m| m.max(0.0))
@@ -227,9 +221,9 @@ impl Measure<'_> {
             || crate::metrics::seen_share(
                 self.asymmetric,
                 pose,
-                &view.camera,
+                &registered.view.camera,
                 &visible,
-                observation.first_depth(),
+                registered.observation.first_depth(),
             ) < 0.1;
         let iou = crate::metrics::iou(
             &crate::metrics::OrientedBox::of(&result.vertices, result.pose),
@@ -238,8 +232,8 @@ impl Measure<'_> {
             symmetric_in_view,
         );
         Ok(Trial {
-            azimuth: *azimuth,
-            elevation: *elevation,
+            azimuth: registered.azimuth,
+            elevation: registered.elevation,
             long_axis_angle: line_of_sight_angle(pose, axes[0]),
             short_axis_angle: line_of_sight_angle(pose, axes[2]),
             known_pose: self.error(&known.vertices),
@@ -260,8 +254,10 @@ impl Measure<'_> {
             z_error_origin: result.pose.translation.z - pose.translation.z,
             z_error_known: (pose.rotation_matrix() * (known_centre - test_centre)).z,
             scale: result.scale,
-            gravity_error: gravity.map_or(0.0, |g| angle_between(g.direction, true_up)),
-            gravity_fallback: *gravity_fallback,
+            gravity_error: registered
+                .gravity
+                .map_or(0.0, |g| angle_between(g.direction, true_up)),
+            gravity_fallback: registered.gravity_fallback,
             add_s: crate::metrics::add_s(
                 &test_vertices,
                 pose,
