@@ -122,6 +122,19 @@ impl Observation {
         self.depth.is_some() || !self.others.is_empty()
     }
 
+    /// An error where no view's mask shows a pixel of the object (an object wholly hidden
+    /// or out of the image): there is nothing to register to.
+    pub fn check_visible(&self) -> Result<()> {
+        if self.mask.iter().any(|&m| m > 0.0) {
+            return Ok(());
+        }
+        Err(Error::InvalidInput(
+            "the mask shows nothing of the object (no pixel of it in any view): there is \
+             nothing to register to"
+                .into(),
+        ))
+    }
+
     /// The support plane in the first view's depth: fitted to the measured pixels around
     /// the mask ([`fit_support_plane`]). An error without depth or without such a plane.
     pub fn support_plane(&self) -> Result<SupportPlane> {
@@ -305,6 +318,7 @@ impl Registrar {
     ) -> Result<Registration> {
         check_starts(plan.starts)?;
         plan.params.validate()?;
+        observation.check_visible()?;
         if let Some(gravity) = &plan.gravity {
             gravity.validate()?;
         }
@@ -369,6 +383,41 @@ mod tests {
             };
             assert_eq!(shaded[i], shade, "pixel {i}");
         }
+    }
+
+    /// An observation whose mask shows no pixel of the object (background, or unknown
+    /// everywhere) is refused; one object pixel in a further view is enough.
+    #[test]
+    fn an_observation_without_the_object_is_refused() {
+        let only = |mask: Vec<f32>| {
+            Observation::new(
+                camera(),
+                ViewImages {
+                    mask,
+                    ..Default::default()
+                },
+            )
+            .unwrap()
+        };
+        assert!(only(square_mask()).check_visible().is_ok());
+        for nothing in [vec![0.0; 48], vec![crate::loss::UNKNOWN; 48]] {
+            let error = only(nothing).check_visible().unwrap_err().to_string();
+            assert!(error.contains("shows nothing of the object"), "{error}");
+        }
+        let other = OtherView {
+            camera: camera(),
+            from_first: Pose::new([0.1, 0.0, 0.0], [0.0; 3]).unwrap(),
+        };
+        let seen_by_the_other = only(vec![0.0; 48])
+            .with_view(
+                other,
+                ViewImages {
+                    mask: square_mask(),
+                    ..Default::default()
+                },
+            )
+            .unwrap();
+        assert!(seen_by_the_other.check_visible().is_ok());
     }
 
     /// Sizes are checked against the camera, a further view's against the first's; a view

@@ -42,13 +42,20 @@ pub(super) fn unknown_in_front(job: &Job, params: &RegisterParams) -> Result<Opt
     Ok(Some(Marked { observed, shaded }))
 }
 
+/// A start whose projected mean shape has fewer than this share of its vertices on the
+/// mask is moved onto the mask ([`onto_mask`]).
+pub(super) const ONTO_MASK_BELOW: f64 = 0.1;
+
 /// `job` with its start moved onto the observed mask where the mean shape, projected at
-/// the start, lands on none of the mask's pixels: across the line of sight (x and y at the
-/// start's distance), so that the centre of its projected vertices lies on the centre of
-/// the mask's pixels (first view). Where what surrounds the mask is unknown (an occluder
-/// found in the depth, or an ignore mask), a silhouette wholly inside the unknown pixels
-/// costs nothing and has no gradient: the registration would stay where it started. A
-/// start that lands on the mask is kept as it is.
+/// the start, lands on the mask's pixels with fewer than [`ONTO_MASK_BELOW`] of its
+/// vertices: across the line of sight (x and y at the start's distance), so that the centre
+/// of its projected vertices lies on the centre of the mask's pixels (first view). Where
+/// what surrounds the mask is unknown (an occluder found in the depth, or an ignore mask),
+/// a silhouette wholly inside the unknown pixels costs nothing and has no gradient: the
+/// registration would stay where it started. And a start that barely touches a mask cut
+/// by the image's border, with most of it outside the image, was pulled out of the image
+/// altogether (a real mug cut in half by the border, from a start with 1% of its vertices
+/// on the mask). A start that lands on the mask is kept as it is.
 pub(super) fn onto_mask<'a>(job: &Job<'a>) -> Result<Job<'a>> {
     let camera = &job.view.camera;
     let (width, height) = (camera.width as usize, camera.height as usize);
@@ -58,7 +65,7 @@ pub(super) fn onto_mask<'a>(job: &Job<'a>) -> Result<Job<'a>> {
     let pose = job.view.pose;
     let rotation = pose.rotation_matrix();
     let mut centre = (0.0, 0.0, 0usize);
-    let mut lands = false;
+    let mut landing = 0usize;
     for vertex in job.space.vertices(&vec![0.0; job.space.dims()])? {
         let p = rotation * vertex + pose.translation;
         if p.z <= camera.near {
@@ -67,12 +74,13 @@ pub(super) fn onto_mask<'a>(job: &Job<'a>) -> Result<Job<'a>> {
         let (u, v) = camera.project(p);
         centre = (centre.0 + u, centre.1 + v, centre.2 + 1);
         let (column, row) = (u.floor(), v.floor());
-        lands |= column >= 0.0
+        landing += (column >= 0.0
             && row >= 0.0
             && (column as usize) < width
             && (row as usize) < height
-            && mask[row as usize * width + column as usize] > 0.0;
+            && mask[row as usize * width + column as usize] > 0.0) as usize;
     }
+    let lands = landing > 0 && landing as f64 >= ONTO_MASK_BELOW * centre.2 as f64;
     let mut seen = (0.0, 0.0, 0usize);
     for (i, _) in mask.iter().enumerate().filter(|(_, &m)| m > 0.0) {
         let (column, row) = ((i % width) as f64 + 0.5, (i / width) as f64 + 0.5);
@@ -103,4 +111,58 @@ pub(super) fn onto_mask<'a>(job: &Job<'a>) -> Result<Job<'a>> {
 pub(super) struct Marked {
     pub(super) observed: Vec<f32>,
     pub(super) shaded: Option<Vec<f32>>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::Rng;
+    use crate::shape::random_space;
+    use crate::Camera;
+
+    /// A start with under a tenth of its vertices on the mask (some, not none) is moved
+    /// across the line of sight onto it; one with more is kept.
+    #[test]
+    fn a_start_barely_on_the_mask_is_moved_onto_it() {
+        let space = random_space(&mut Rng::new(1), 4, 2);
+        let camera = Camera::new(100.0, 100.0, 32.0, 32.0, 64, 64).unwrap();
+        let mean = space.vertices(&[0.0, 0.0]).unwrap();
+        let pixel = |pose: Pose, v: DVec3| {
+            let (u, v) = camera.project(pose.rotation_matrix() * v + pose.translation);
+            (u.floor() as i64, v.floor() as i64)
+        };
+        // The mask: the box of the mean shape's projection at the true pose.
+        let truth = Pose::new([0.0, 0.0, 0.5], [0.3, 0.2, 0.1]).unwrap();
+        let corners = mean.iter().map(|&v| pixel(truth, v));
+        let (lo, hi) = corners.fold(((64, 64), (0, 0)), |(lo, hi), (u, v)| {
+            ((lo.0.min(u), lo.1.min(v)), (hi.0.max(u), hi.1.max(v)))
+        });
+        let on = |(u, v): (i64, i64)| (lo.0..=hi.0).contains(&u) && (lo.1..=hi.1).contains(&v);
+        let mask: Vec<f32> = (0..64 * 64)
+            .map(|i| on((i % 64, i / 64)) as u32 as f32)
+            .collect();
+        let share = |pose: Pose| {
+            let landing = mean.iter().filter(|&&v| on(pixel(pose, v))).count();
+            landing as f64 / mean.len() as f64
+        };
+        let start = |dx: f64| Pose {
+            translation: truth.translation + DVec3::new(dx, 0.0, 0.0),
+            ..truth
+        };
+        let job = |pose: Pose| Job::new(&space, &mask, View { camera, pose });
+        let barely = (1..1000)
+            .map(|i| start(i as f64 * 1e-4))
+            .find(|&p| share(p) > 0.0 && share(p) < ONTO_MASK_BELOW)
+            .expect("a start with a few vertices on the mask");
+        let moved = onto_mask(&job(barely)).unwrap().view.pose;
+        assert_eq!(moved.rotation, barely.rotation);
+        assert_eq!(moved.translation.z, barely.translation.z);
+        assert!(share(moved) > 0.5, "{}", share(moved));
+        let kept = (1..1000)
+            .map(|i| start(i as f64 * 1e-4))
+            .find(|&p| share(p) < 0.5)
+            .unwrap();
+        assert!(share(kept) >= ONTO_MASK_BELOW);
+        assert_eq!(onto_mask(&job(kept)).unwrap().view.pose, kept);
+    }
 }

@@ -102,6 +102,7 @@ pub fn register_trial(
         depth: observed.depth,
         shaded: observed.shaded,
     };
+    observation.check_visible()?;
     let (gravity, gravity_fallback) = trial_gravity(settings, &observation, pose)?;
     let job = |view: View| Job {
         gravity,
