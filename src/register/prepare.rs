@@ -53,9 +53,9 @@ pub(super) const ONTO_MASK_BELOW: f64 = 0.1;
 /// what surrounds the mask is unknown (an occluder found in the depth, or an ignore mask),
 /// a silhouette wholly inside the unknown pixels costs nothing and has no gradient: the
 /// registration would stay where it started. And a start that barely touches a mask cut
-/// by the image's border, with most of it outside the image, was pulled out of the image
-/// altogether (a real mug cut in half by the border, from a start with 1% of its vertices
-/// on the mask). A start that lands on the mask is kept as it is.
+/// by the image's border, most of it outside the image, can be pulled out of the image
+/// altogether. A start with [`ONTO_MASK_BELOW`] of its vertices on the mask or more is
+/// kept as it is.
 pub(super) fn onto_mask<'a>(job: &Job<'a>) -> Result<Job<'a>> {
     let camera = &job.view.camera;
     let (width, height) = (camera.width as usize, camera.height as usize);
@@ -80,7 +80,7 @@ pub(super) fn onto_mask<'a>(job: &Job<'a>) -> Result<Job<'a>> {
             && (row as usize) < height
             && mask[row as usize * width + column as usize] > 0.0) as usize;
     }
-    let lands = landing > 0 && landing as f64 >= ONTO_MASK_BELOW * centre.2 as f64;
+    let lands = landing as f64 >= ONTO_MASK_BELOW * centre.2 as f64;
     let mut seen = (0.0, 0.0, 0usize);
     for (i, _) in mask.iter().enumerate().filter(|(_, &m)| m > 0.0) {
         let (column, row) = ((i % width) as f64 + 0.5, (i / width) as f64 + 0.5);

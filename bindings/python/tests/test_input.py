@@ -164,6 +164,8 @@ def test_register_refuses_bad_options(device, space, scene):
         device.register(space, mask, K, SIZE, POSE, optimize_pose=True, gravity="from-depth")
     with pytest.raises(ValueError, match=r"code: expected shape \(3,\)"):
         space.vertices(np.zeros(4))
+    with pytest.raises(ValueError, match="the mask shows nothing of the object"):
+        device.register(space, np.zeros_like(mask), K, SIZE, POSE, optimize_pose=True)
     with pytest.raises(ValueError, match=r"views\[0\]: has no \"mask\""):
         device.register(space, mask, K, SIZE, POSE, views=[{"K": K, "size": SIZE, "from_first": np.zeros(6)}])
 

@@ -189,13 +189,17 @@ def test_silhouette_loss_under_torch_func_vmap(device, scene):
     each = [device.loss_and_grad(vertices, faces, K, SIZE, p, mask) for p in poses]
     losses = torch.func.vmap(f, in_dims=(None, 0))(torch.tensor(vertices), torch.tensor(poses))
     assert losses.shape == (3,)
-    assert np.allclose(losses.numpy(), [loss for loss, _, _ in each], rtol=1e-6, atol=0)
+    assert np.array_equal(losses.numpy(), [loss for loss, _, _ in each])
     grads = torch.func.vmap(torch.func.grad(f, argnums=1), in_dims=(None, 0))(torch.tensor(vertices), torch.tensor(poses))
     assert np.array_equal(grads.numpy(), np.stack([g for _, _, g in each]))
     by_shape = torch.func.vmap(torch.func.grad(f), in_dims=(0, None))(torch.tensor(shapes), torch.tensor(POSE))
     for got, v in zip(by_shape.numpy(), shapes):
         _, grad_vertices, _ = device.loss_and_grad(v, faces, K, SIZE, POSE, mask)
         assert np.array_equal(got, grad_vertices.astype(np.float64))
+    # Both mapped, the batch along another dimension of the vertices: pairs (shape i, pose i).
+    pairs = torch.func.vmap(f, in_dims=(2, 0))(torch.tensor(shapes).permute(1, 2, 0), torch.tensor(poses[:2]))
+    expected = [device.loss_and_grad(v, faces, K, SIZE, p, mask)[0] for v, p in zip(shapes, poses[:2])]
+    assert np.array_equal(pairs.numpy(), expected)
     # grad of a sum over a vmapped batch: each pose's gradient.
     p = torch.tensor(poses, requires_grad=True)
     torch.func.vmap(f, in_dims=(None, 0))(torch.tensor(vertices), p).sum().backward()

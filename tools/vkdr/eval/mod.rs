@@ -303,16 +303,8 @@ pub fn evaluate_instance(
         asymmetric,
         ..
     } = reference;
-    let measure = Measure {
-        space,
-        name,
-        test,
-        truth,
-        settings,
-        symmetric: *symmetric,
-        asymmetric,
-    };
-    let test_vertices = test.points();
+    let measure = Measure::new(space, name, test, truth, settings, (*symmetric, asymmetric));
+    let test_vertices = &measure.test_vertices;
     let mut rng = Rng::new(settings.seed ^ hash(name));
     let (mut known_ch, mut noisy_ch) = (vec![], vec![]);
     let mut trials: Vec<Trial> = Vec::new();
@@ -359,7 +351,7 @@ pub fn evaluate_instance(
         {
             best_known = Some((measured.known_pose, known.code.clone()));
         }
-        known_ch.push(chamfer(&test_vertices, &known.vertices));
+        known_ch.push(chamfer(test_vertices, &known.vertices));
         iterations.push(known.evaluations as f64);
         ms.push(known.milliseconds);
         ms_per_iteration.push(known.milliseconds / known.evaluations as f64);
@@ -367,7 +359,7 @@ pub fn evaluate_instance(
         if let Some(result) = truth_started {
             from_truth.push(measure.error(&result.vertices));
         }
-        noisy_ch.push(chamfer(&test_vertices, &noisy.vertices));
+        noisy_ch.push(chamfer(test_vertices, &noisy.vertices));
         noise_iterations.push(noisy.evaluations as f64);
         noise_ms.push(noisy.milliseconds);
         accumulate_curve(&mut curve_noise, space, truth, &noisy, settings.trials)?;
@@ -393,7 +385,7 @@ pub fn evaluate_instance(
         oracle,
         space_optimum: optimum,
         oracle_code_sd: largest_sd(space, &reference.oracle_code),
-        oracle_chamfer: chamfer(&test_vertices, oracle_vertices),
+        oracle_chamfer: chamfer(test_vertices, oracle_vertices),
         known_pose: stat(|t| t.known_pose),
         known_pose_chamfer: Stat::of(&known_ch),
         pose_noise_worst: trials.iter().map(|t| t.pose_noise).fold(0.0, f64::max),

@@ -156,20 +156,53 @@ pub fn register_trial(
 
 /// A test instance as the trials' measurements need it.
 pub struct Measure<'a> {
-    pub space: &'a ShapeSpace,
+    space: &'a ShapeSpace,
     /// The instance's name (it seeds the reverse error's surface sample).
-    pub name: &'a str,
-    pub test: &'a Mesh,
+    name: &'a str,
+    test: &'a Mesh,
     /// The surface sample the errors are measured from.
-    pub truth: &'a [DVec3],
-    pub settings: &'a EvalSettings,
+    truth: &'a [DVec3],
+    settings: &'a EvalSettings,
     /// Whether the instance is symmetric about its up axis, and the vertices that break
     /// that symmetry (a mug's handle).
-    pub symmetric: bool,
-    pub asymmetric: &'a [DVec3],
+    symmetric: bool,
+    asymmetric: &'a [DVec3],
+    /// The test instance's vertices, its surface's centroid and size
+    /// ([`surface_extent`]), and its bounding box's axes, longest first.
+    pub test_vertices: Vec<DVec3>,
+    test_centre: DVec3,
+    test_size: f64,
+    axes: [DVec3; 3],
 }
 
-impl Measure<'_> {
+impl<'a> Measure<'a> {
+    /// `test` measured against `space` through the surface sample `truth`, with its
+    /// symmetry (`symmetric`, `asymmetric` as in [`super::Reference`]).
+    pub fn new(
+        space: &'a ShapeSpace,
+        name: &'a str,
+        test: &'a Mesh,
+        truth: &'a [DVec3],
+        settings: &'a EvalSettings,
+        (symmetric, asymmetric): (bool, &'a [DVec3]),
+    ) -> Self {
+        let test_vertices = test.points();
+        let (test_centre, test_size) = surface_extent(&test_vertices, test.triangles());
+        Self {
+            space,
+            name,
+            test,
+            truth,
+            settings,
+            symmetric,
+            asymmetric,
+            test_vertices,
+            test_centre,
+            test_size,
+            axes: super::extent_axes(test),
+        }
+    }
+
     /// The error of registered vertices (object frame) against the test surface.
     pub fn error(&self, vertices: &[DVec3]) -> f64 {
         surface_error(self.truth, vertices, self.space.canonical.triangles())
@@ -196,9 +229,12 @@ impl Measure<'_> {
         } = registered;
         let (pose, up) = (registered.pose, self.settings.up);
         let triangles = self.space.canonical.triangles();
-        let test_vertices = self.test.points();
-        let (test_centre, test_size) = surface_extent(&test_vertices, self.test.triangles());
-        let axes = super::extent_axes(self.test);
+        let (test_vertices, test_centre, test_size, axes) = (
+            &self.test_vertices,
+            self.test_centre,
+            self.test_size,
+            self.axes,
+        );
         let true_up = pose.rotation_matrix() * up;
 
         let known_centre = surface_extent(&known.vertices, triangles).0;
@@ -228,7 +264,7 @@ impl Measure<'_> {
             ) < 0.1;
         let iou = crate::metrics::iou(
             &crate::metrics::OrientedBox::of(&result.vertices, result.pose),
-            &crate::metrics::OrientedBox::of(&test_vertices, pose),
+            &crate::metrics::OrientedBox::of(test_vertices, pose),
             up,
             symmetric_in_view,
         );
@@ -260,7 +296,7 @@ impl Measure<'_> {
                 .map_or(0.0, |g| angle_between(g.direction, true_up)),
             gravity_fallback: registered.gravity_fallback,
             add_s: crate::metrics::add_s(
-                &test_vertices,
+                test_vertices,
                 pose,
                 &result.vertices,
                 triangles,

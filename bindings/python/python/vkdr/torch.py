@@ -201,9 +201,8 @@ class SilhouetteLoss(torch.autograd.Function):
     @staticmethod
     def vmap(info, in_dims, vertices, pose, device, faces, K, size, mask, options):
         """`torch.func.vmap`'s rule: the function of each element of the batch (the vertices',
-        the pose's or both, along their mapped dimension), stacked along dimension 0."""
-        if any(dim is not None for dim in torch.utils._pytree.tree_leaves(in_dims[2:])):
-            raise ValueError("vkdr.torch.silhouette_loss: vmap maps over the vertices and the pose only")
+        the pose's or both, along their mapped dimension), stacked along dimension 0. (The
+        other arguments are NumPy arrays and options by then, `silhouette_loss`'s doing.)"""
         vertices_dim, pose_dim = in_dims[:2]
         element = lambda x, dim, i: x if dim is None else x.select(dim, i)
         outputs = [
