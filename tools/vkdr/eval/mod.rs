@@ -303,7 +303,7 @@ pub fn evaluate_instance(
         asymmetric,
         ..
     } = reference;
-    let measure = Measure::new(space, name, test, truth, settings, (*symmetric, asymmetric));
+    let measure = Measure::new(space, name, test, truth, settings, *symmetric, asymmetric);
     let test_vertices = &measure.test_vertices;
     let mut rng = Rng::new(settings.seed ^ hash(name));
     let (mut known_ch, mut noisy_ch) = (vec![], vec![]);

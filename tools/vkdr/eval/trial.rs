@@ -184,7 +184,8 @@ impl<'a> Measure<'a> {
         test: &'a Mesh,
         truth: &'a [DVec3],
         settings: &'a EvalSettings,
-        (symmetric, asymmetric): (bool, &'a [DVec3]),
+        symmetric: bool,
+        asymmetric: &'a [DVec3],
     ) -> Self {
         let test_vertices = test.points();
         let (test_centre, test_size) = surface_extent(&test_vertices, test.triangles());
