@@ -200,6 +200,10 @@ def test_silhouette_loss_under_torch_func_vmap(device, scene):
     pairs = torch.func.vmap(f, in_dims=(2, 0))(torch.tensor(shapes).permute(1, 2, 0), torch.tensor(poses[:2]))
     expected = [device.loss_and_grad(v, faces, K, SIZE, p, mask)[0] for v, p in zip(shapes, poses[:2])]
     assert np.array_equal(pairs.numpy(), expected)
+    # The mask is not mapped: a clear error, not torch's missing data pointer.
+    masks = torch.tensor(np.stack([mask, mask]), dtype=torch.float32)
+    with pytest.raises(ValueError, match="mask cannot be mapped by torch.func.vmap"):
+        torch.func.vmap(lambda m: silhouette_loss(torch.tensor(vertices), torch.tensor(POSE), faces, K, SIZE, m, device=device))(masks)
     # grad of a sum over a vmapped batch: each pose's gradient.
     p = torch.tensor(poses, requires_grad=True)
     torch.func.vmap(f, in_dims=(None, 0))(torch.tensor(vertices), p).sum().backward()

@@ -250,16 +250,28 @@ def silhouette_loss(vertices, pose, faces, K, size, mask, loss="mse", depth=None
     with vkdr's exact gradients for `vertices` and `pose`. `options` are the further keyword
     arguments of `vkdr.Device.loss_and_grad` (shading, ignore, depth_sigma, occlusion, ...).
     """
-    options = {key: _numpy(value) for key, value in options.items()}
+    options = {key: _fixed(key, value) for key, value in options.items()}
     options["loss"] = loss
-    options["depth"] = _numpy(depth)
+    options["depth"] = _fixed("depth", depth)
     device = device if device is not None else default_device()
     vertices = torch.as_tensor(vertices)
     pose = torch.as_tensor(pose, device=vertices.device)
     value, _, _ = SilhouetteLoss.apply(
-        vertices, pose, device, _numpy(faces), _numpy(K), tuple(size), _numpy(mask), options
+        vertices, pose, device, _fixed("faces", faces), _fixed("K", K), tuple(size), _fixed("mask", mask), options
     )
     return value
+
+
+def _fixed(name, value):
+    """`silhouette_loss`'s argument `name` (not differentiated) as NumPy: a ValueError where
+    `torch.func.vmap` maps over it, which torch reports as a missing data pointer."""
+    try:
+        return _numpy(value)
+    except RuntimeError as e:
+        raise ValueError(
+            f"silhouette_loss: {name} cannot be mapped by torch.func.vmap (only the vertices and "
+            f"the pose can); give one {name} per call"
+        ) from e
 
 
 # --- Antialiasing: vkdr's silhouette edges for any image --------------------------------
