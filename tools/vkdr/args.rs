@@ -1,7 +1,7 @@
 //! The flag groups several commands share: camera and pose (render, grad, register), CPD
 //! (cpd, shape-space), depth loss and shading (register, eval), shards (eval, eval-frames).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Result;
 
@@ -186,12 +186,29 @@ pub fn parse_view(intrinsics: &str, size: &str, pose: &str, near: f64) -> Result
     })
 }
 
-/// The `--tilt-tolerance` flag (degrees, in [0, 90)) in radians.
-pub fn tilt_tolerance(degrees: f64) -> Result<f64> {
-    if !(degrees.is_finite() && (0.0..90.0).contains(&degrees)) {
-        anyhow::bail!("--tilt-tolerance must be 0 to 90 degrees, not {degrees}");
+/// The `--tilt-tolerance` flag of the commands with `--gravity`.
+#[derive(clap::Args)]
+pub struct TiltArgs {
+    /// Degrees of tilt from --gravity that cost nothing (0 to 90; default 1).
+    #[arg(long = "tilt-tolerance", allow_negative_numbers = true)]
+    degrees: Option<f64>,
+}
+
+impl TiltArgs {
+    /// The tolerance in radians: an error outside [0, 90) degrees, or where given without
+    /// a gravity to apply it to.
+    pub fn radians(&self, gravity: bool) -> Result<f64> {
+        let Some(degrees) = self.degrees else {
+            return Ok(1f64.to_radians());
+        };
+        if !gravity {
+            anyhow::bail!("--tilt-tolerance is the tolerance of --gravity: give --gravity too");
+        }
+        if !(degrees.is_finite() && (0.0..90.0).contains(&degrees)) {
+            anyhow::bail!("--tilt-tolerance must be 0 to 90 degrees, not {degrees}");
+        }
+        Ok(degrees.to_radians())
     }
-    Ok(degrees.to_radians())
 }
 
 /// The `--code-prior` flag: `auto` (the weight the observation's pixel count implies,
@@ -224,9 +241,20 @@ pub struct ShardArgs {
     /// one process would write into OUT, from the settings the shards carry.
     #[arg(long, num_args = 2.., value_names = ["OUT", "SHARD_DIR"], conflicts_with_all = ["out", "shard", "spaces"])]
     pub merge: Option<Vec<PathBuf>>,
+    #[arg(long, required_unless_present = "merge")]
+    out: Option<PathBuf>,
 }
 
 impl ShardArgs {
+    /// The output folder: --out, or the first folder of --merge.
+    pub fn out(&self) -> &Path {
+        match (&self.merge, &self.out) {
+            (Some(merge), _) => &merge[0],
+            (None, Some(out)) => out,
+            (None, None) => unreachable!("clap requires --out or --merge"),
+        }
+    }
+
     /// The shard to evaluate (None: every unit), after checking that --spaces can be a
     /// folder of spaces.
     pub fn shard(&self) -> Result<Option<crate::shard::Shard>> {

@@ -137,36 +137,13 @@ pub struct Args {
     /// needs --table).
     #[arg(long, value_parser = ["known", "from-depth"])]
     gravity: Option<String>,
-    /// Degrees of tilt from --gravity that cost nothing.
-    #[arg(
-        long,
-        requires = "gravity",
-        allow_negative_numbers = true,
-        default_value_t = 1.0
-    )]
-    tilt_tolerance: f64,
+    #[command(flatten)]
+    tilt: crate::args::TiltArgs,
     /// Run even where `check-dataset` finds the set unusable (millimetres, no meshes, ...).
     #[arg(long)]
     skip_checks: bool,
     #[command(flatten)]
-    shards: ShardArgs,
-    #[arg(long, required_unless_present = "merge")]
-    out: Option<PathBuf>,
-}
-
-impl Args {
-    /// The output folder (--out, or the first folder of --merge).
-    pub fn out(&self) -> &Path {
-        shard::out_folder(&self.shards.merge, &self.out)
-    }
-}
-
-/// `eval`'s flags alone, to read a merged run's flags back.
-#[derive(clap::Parser)]
-#[command(name = "eval")]
-struct Flags {
-    #[command(flatten)]
-    args: Args,
+    pub shards: ShardArgs,
 }
 
 /// `vkdr eval`: the default settings with the flags' changes; a shard of them, or the
@@ -178,7 +155,7 @@ pub fn run(args: &Args) -> Result<()> {
             &merge[0],
             &merge[1..],
             |line| {
-                let settings = settings(&<Flags as clap::Parser>::try_parse_from(line)?.args)?;
+                let settings = settings(&shard::parse_flags::<Args>("eval", line)?)?;
                 let resolved = shard::resolved(&settings);
                 Ok((settings, resolved))
             },
@@ -200,7 +177,7 @@ pub fn run(args: &Args) -> Result<()> {
         args.categories.as_deref(),
         args.skip_checks,
         &plan,
-        args.out(),
+        args.shards.out(),
     )
 }
 
@@ -284,7 +261,7 @@ fn settings(args: &Args) -> Result<EvalSettings> {
         ),
         Some(_) => Some(vkdr_app::eval::GravitySource::FromDepth),
     };
-    settings.tilt_tolerance = crate::args::tilt_tolerance(args.tilt_tolerance)?;
+    settings.tilt_tolerance = args.tilt.radians(args.gravity.is_some())?;
     let loss: Option<vkdr::loss::Loss> = args.loss.map(Into::into);
     let optimizer: Option<vkdr::register::Optimizer> = args.optimizer.map(Into::into);
     for params in [&mut settings.known_pose, &mut settings.pose_noise] {

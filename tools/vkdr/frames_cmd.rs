@@ -45,8 +45,8 @@ pub struct Args {
     /// ground truth's up), from-depth (the support plane fitted around the mask) or none.
     #[arg(long, value_parser = ["known", "from-depth", "none"], default_value = "from-depth")]
     gravity: String,
-    #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
-    tilt_tolerance: f64,
+    #[command(flatten)]
+    tilt: crate::args::TiltArgs,
     /// Where --gravity from-depth finds no support plane: register that frame without
     /// gravity (none; its rows say so) or count it as failed (error).
     #[arg(long, value_parser = ["none", "error"], default_value = "none")]
@@ -68,24 +68,7 @@ pub struct Args {
     #[command(flatten)]
     renamed: RenamedArgs,
     #[command(flatten)]
-    shards: ShardArgs,
-    #[arg(long, required_unless_present = "merge")]
-    out: Option<PathBuf>,
-}
-
-impl Args {
-    /// The output folder (--out, or the first folder of --merge).
-    pub fn out(&self) -> &Path {
-        shard::out_folder(&self.shards.merge, &self.out)
-    }
-}
-
-/// `eval-frames`' flags alone, to read a merged run's flags back.
-#[derive(clap::Parser)]
-#[command(name = "eval-frames")]
-struct Flags {
-    #[command(flatten)]
-    args: Args,
+    pub shards: ShardArgs,
 }
 
 /// The evaluation's settings from the flags (the camera and distance are each frame's).
@@ -102,7 +85,7 @@ fn settings(args: &Args) -> Result<EvalSettings> {
         seed: args.seed,
         dims: args.dims,
         depth: Some(args.depth_loss.loss()?),
-        tilt_tolerance: crate::args::tilt_tolerance(args.tilt_tolerance)?,
+        tilt_tolerance: args.tilt.radians(args.gravity != "none")?,
         gravity_fallback: args.gravity_fallback == "none",
         gravity: match args.gravity.as_str() {
             "known" => Some(GravitySource::Known),
@@ -136,7 +119,7 @@ pub fn run(args: &Args) -> Result<()> {
             &merge[0],
             &merge[1..],
             |line| {
-                let run = <Flags as clap::Parser>::try_parse_from(line)?.args;
+                let run = shard::parse_flags::<Args>("eval-frames", line)?;
                 let frames = read_frames(&run)?;
                 let units = frames.iter().map(|f| f.objects.len()).sum();
                 let settings = settings(&run)?;
@@ -159,7 +142,7 @@ pub fn run(args: &Args) -> Result<()> {
             map_file.display()
         );
     }
-    let out = args.out();
+    let out = args.shards.out();
     let map = bop::read_map(map_file)?;
     // Every frame is read and checked before any work.
     let frames = read_frames(args)?;

@@ -116,14 +116,8 @@ pub struct Args {
     /// within --tilt-tolerance of it; the rotation about it stays free.
     #[arg(long, requires = "optimize_pose", allow_hyphen_values = true)]
     gravity: Option<String>,
-    /// Degrees of tilt from --gravity that cost nothing.
-    #[arg(
-        long,
-        requires = "gravity",
-        allow_negative_numbers = true,
-        default_value_t = 1.0
-    )]
-    tilt_tolerance: f64,
+    #[command(flatten)]
+    tilt: crate::args::TiltArgs,
     /// Fit one uniform scale of the shape too (0.25 to 1.75), for an instance larger or
     /// smaller than the training set's; observable with depth or a further view.
     #[arg(long)]
@@ -295,8 +289,7 @@ fn from_files(args: &Args, view: View, further: &[FurtherView]) -> Result<Observ
 
 /// The up direction of --gravity: given, or the normal of the support plane fitted in the
 /// observed depth (printed).
-fn gravity(args: &Args, text: &str, up: DVec3, observed: &Observation) -> Result<Gravity> {
-    let tolerance = args.tilt_tolerance.to_radians();
+fn gravity(text: &str, up: DVec3, tolerance: f64, observed: &Observation) -> Result<Gravity> {
     let gravity = if text == "from-depth" {
         if observed.depth.is_none() {
             bail!("--gravity from-depth needs the observed depth (--observed-depth, or --depth)");
@@ -407,6 +400,7 @@ pub fn run(args: &Args) -> Result<()> {
     if args.starts > 1 && args.starts != vkdr::register::DEFAULT_STARTS && !args.optimize_pose {
         bail!("--starts turns the starting pose: give --optimize-pose too");
     }
+    let tolerance = args.tilt.radians(args.gravity.is_some())?;
     let space = ShapeSpace::load(&args.space)?;
     let up = match &args.up {
         Some(text) => {
@@ -471,7 +465,7 @@ pub fn run(args: &Args) -> Result<()> {
     };
     let gravity = match &args.gravity {
         None => None,
-        Some(g) => Some(gravity(args, g, up, &observed)?),
+        Some(g) => Some(gravity(g, up, tolerance, &observed)?),
     };
     let plan = Plan {
         starts: if args.optimize_pose { args.starts } else { 1 },

@@ -103,14 +103,13 @@ pub fn keep_own(units: &mut Vec<Unit>, costs: &[f64], shard: Option<Shard>) {
     }
 }
 
-/// The output folder of a command that merges: the first folder of `merge`, else `out`
-/// (clap requires one of them).
-pub fn out_folder<'a>(merge: &'a Option<Vec<PathBuf>>, out: &'a Option<PathBuf>) -> &'a Path {
-    match (merge, out) {
-        (Some(merge), _) => &merge[0],
-        (None, Some(out)) => out,
-        (None, None) => unreachable!("clap requires --out or --merge"),
-    }
+/// A command's flags read back from the command line a shard saved.
+pub fn parse_flags<A: clap::Args + clap::FromArgMatches>(
+    command: &'static str,
+    line: Vec<String>,
+) -> Result<A> {
+    let matches = A::augment_args(clap::Command::new(command)).try_get_matches_from(line)?;
+    Ok(A::from_arg_matches(&matches)?)
 }
 
 /// The settings a run resolved its flags to, every parameter with its value (defaults

@@ -329,6 +329,23 @@ fn bad_input_exits_non_zero_naming_the_problem_and_keeps_existing_files() {
             "--tilt-tolerance must be 0 to 90 degrees, not -5",
         ),
         case(
+            &eval(&["--tilt-tolerance", "2"]),
+            "--tilt-tolerance is the tolerance of --gravity: give --gravity too",
+        ),
+        case(
+            &[
+                "eval-frames",
+                "data",
+                "--gravity",
+                "none",
+                "--tilt-tolerance",
+                "2",
+                "--out",
+                "OUT",
+            ],
+            "--tilt-tolerance is the tolerance of --gravity",
+        ),
+        case(
             &["eval", "--dataset", "empty_tests", "--out", "OUT"],
             "no meshes",
         ),
