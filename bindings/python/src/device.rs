@@ -9,7 +9,7 @@ use pyo3::types::{PyDict, PyList};
 
 use vkdr::diff::{ObservedDepth, Scene, SceneDesc};
 use vkdr::loss::Loss;
-use vkdr::raster::{Outputs, View};
+use vkdr::raster::{GbufferData, Outputs, View};
 use vkdr::register::{Job, Plan, ViewImages};
 
 use crate::arrays::{self, array, bad};
@@ -116,25 +116,14 @@ impl Device {
         size: &Bound<'_, PyAny>,
         poses: &Bound<'py, PyAny>,
     ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>, Bound<'py, PyAny>)> {
-        let mesh = crate::mesh(vertices, faces)?;
-        let camera = crate::camera(K, crate::size(size, "size")?)?;
-        let (poses, batched) = crate::poses(poses, "poses")?;
-        let views: Vec<View> = poses.iter().map(|&pose| View { camera, pose }).collect();
-        let g = py.detach(|| {
-            self.engine.run(|ctx, parts| {
-                parts.registrar(ctx)?.renderer().rasterizer().render(
-                    ctx,
-                    &mesh,
-                    &views,
-                    Outputs::IdsBaryDepth,
-                )
-            })
-        })?;
-        let (h, w) = (camera.height as usize, camera.width as usize);
-        let mut shape = vec![views.len(), h, w];
-        if !batched {
-            shape.remove(0);
-        }
+        let (g, mut shape) = render_poses(
+            self,
+            py,
+            (vertices, faces),
+            (K, size),
+            poses,
+            Outputs::IdsBaryDepth,
+        )?;
         let ids = array(py, into_vec(g.ids), &shape)?;
         let depth = g.depth.map(into_vec).unwrap_or_default();
         let depth = array::<f32>(py, depth, &shape)?;
@@ -158,26 +147,7 @@ impl Device {
         size: &Bound<'_, PyAny>,
         poses: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyAny>> {
-        let mesh = crate::mesh(vertices, faces)?;
-        let camera = crate::camera(K, crate::size(size, "size")?)?;
-        let (poses, batched) = crate::poses(poses, "poses")?;
-        let views: Vec<View> = poses.iter().map(|&pose| View { camera, pose }).collect();
-        let g = py.detach(|| {
-            self.engine.run(|ctx, parts| {
-                parts.registrar(ctx)?.renderer().rasterizer().render(
-                    ctx,
-                    &mesh,
-                    &views,
-                    Outputs::Ids,
-                )
-            })
-        })?;
-        let (h, w) = (camera.height as usize, camera.width as usize);
-        let shape = if batched {
-            vec![views.len(), h, w]
-        } else {
-            vec![h, w]
-        };
+        let (g, shape) = render_poses(self, py, (vertices, faces), (K, size), poses, Outputs::Ids)?;
         Ok(array(py, into_vec(g.ids), &shape)?.into_any())
     }
 
@@ -428,6 +398,39 @@ impl Device {
             .map(|r| Registration::new(&space, r))
             .collect())
     }
+}
+
+/// The G-buffer of the mesh (`vertices`, `faces`) seen through `K` at `size` from each of
+/// `poses` (one (6,) or several (N, 6)), and the shape of its per-pixel arrays: (H, W), or
+/// (N, H, W) for several poses.
+fn render_poses(
+    device: &Device,
+    py: Python<'_>,
+    (vertices, faces): (&Bound<'_, PyAny>, &Bound<'_, PyAny>),
+    (k, size): (&Bound<'_, PyAny>, &Bound<'_, PyAny>),
+    poses: &Bound<'_, PyAny>,
+    outputs: Outputs,
+) -> PyResult<(GbufferData, Vec<usize>)> {
+    let mesh = crate::mesh(vertices, faces)?;
+    let camera = crate::camera(k, crate::size(size, "size")?)?;
+    let (poses, batched) = crate::poses(poses, "poses")?;
+    let views: Vec<View> = poses.iter().map(|&pose| View { camera, pose }).collect();
+    let g = py.detach(|| {
+        device.engine.run(|ctx, parts| {
+            parts
+                .registrar(ctx)?
+                .renderer()
+                .rasterizer()
+                .render(ctx, &mesh, &views, outputs)
+        })
+    })?;
+    let (h, w) = (camera.height as usize, camera.width as usize);
+    let shape = if batched {
+        vec![views.len(), h, w]
+    } else {
+        vec![h, w]
+    };
+    Ok((g, shape))
 }
 
 /// An array's elements in order, without a copy where they are its buffer's first ones (a
