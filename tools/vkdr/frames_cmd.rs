@@ -121,10 +121,11 @@ pub fn run(args: &Args) -> Result<()> {
             |line| {
                 let run = shard::parse_flags::<Args>("eval-frames", line)?;
                 let frames = read_frames(&run)?;
-                let units = frames.iter().map(|f| f.objects.len()).sum();
+                let (map_file, map) = read_map(&run)?;
+                let mapped = Mapped::new(&frames, &map, &map_file)?;
                 let settings = settings(&run)?;
                 let resolved = shard::resolved(&settings);
-                Ok(((settings, describe(&frames, units)), resolved))
+                Ok(((settings, describe(&frames, &mapped)), resolved))
             },
             |out, rows, failures, (settings, frames), device| {
                 crate::frames_report::write(out, rows, failures, settings, frames, device)
@@ -133,58 +134,24 @@ pub fn run(args: &Args) -> Result<()> {
     }
     let base = settings(args)?;
     let shard = args.shards.shard()?;
-    let dir = args.dir.as_deref().expect("clap requires DIR");
-    let default_map = dir.join("map.json");
-    let map_file = args.categories.as_deref().unwrap_or(&default_map);
-    if !map_file.is_file() {
-        bail!(
-            "{}: no map from BOP obj_id to category; give --categories MAP",
-            map_file.display()
-        );
-    }
     let out = args.shards.out();
-    let map = bop::read_map(map_file)?;
+    let (map_file, map) = read_map(args)?;
     // Every frame is read and checked before any work.
     let frames = read_frames(args)?;
-    let categories: Vec<PathBuf> = {
-        let mut dirs: Vec<PathBuf> = map.values().map(|c| c.category.clone()).collect();
-        dirs.sort();
-        dirs.dedup();
-        dirs
-    };
-    let mut targets = Vec::new();
-    for frame in &frames {
-        for object in &frame.objects {
-            let Some(entry) = map.get(&object.obj_id) else {
-                bail!(
-                    "{}/scene_gt.json image {} object {}: obj_id {} is not in {} (it maps {})",
-                    frame.scene,
-                    frame.image,
-                    object.gt_index,
-                    object.obj_id,
-                    map_file.display(),
-                    map.keys()
-                        .map(|k| k.to_string())
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                );
-            };
-            let category = categories
-                .iter()
-                .position(|c| *c == entry.category)
-                .expect("every mapped category is listed");
-            targets.push(Target {
-                frame,
-                object,
-                category,
-            });
-        }
+    let mapped = Mapped::new(&frames, &map, &map_file)?;
+    if let Some(skipped) = mapped.skipped() {
+        eprintln!("note: {skipped}");
     }
+    let Mapped {
+        categories,
+        targets,
+        ..
+    } = &mapped;
     let models: BTreeMap<u64, Mesh> = map
         .iter()
         .map(|(id, entry)| Ok((*id, model_in_category(entry)?)))
         .collect::<Result<_>>()?;
-    let described = describe(&frames, targets.len());
+    let described = describe(&frames, &mapped);
     let ctx = Context::new()?;
     let device = format!("{} ({})", ctx.info().name, ctx.info().driver_info);
     let registrar = Registrar::new(&ctx)?;
@@ -194,7 +161,7 @@ pub fn run(args: &Args) -> Result<()> {
     let mut costs = Vec::new();
     // Each category's up axis and the expected cost of its units.
     let mut checked = Vec::new();
-    for dir in &categories {
+    for dir in categories {
         let category = crate::spaces::check_first(dir, false, false)?;
         checked.push((category.info.up, shard::unit_cost(&category)?));
     }
@@ -401,7 +368,114 @@ fn read_frames(args: &Args) -> Result<Vec<Frame>> {
 
 /// What the frames are, in words: how many, of which scenes, their cameras (BOP's `cam_K`,
 /// pixel centres on integers) and sizes, and the depth.
-fn describe(frames: &[Frame], units: usize) -> String {
+/// The map from BOP obj_id to category (--categories, else DIR/map.json) and its file.
+fn read_map(args: &Args) -> Result<(PathBuf, BTreeMap<u64, ObjectCategory>)> {
+    let dir = args.dir.as_deref().expect("clap requires DIR");
+    let map_file = args
+        .categories
+        .clone()
+        .unwrap_or_else(|| dir.join("map.json"));
+    if !map_file.is_file() {
+        bail!(
+            "{}: no map from BOP obj_id to category; give --categories MAP",
+            map_file.display()
+        );
+    }
+    let map = bop::read_map(&map_file)?;
+    Ok((map_file, map))
+}
+
+/// The frames' objects a map covers, the units of the evaluation. A BOP scene annotates
+/// every object in view and a category map covers some: the others are skipped and
+/// counted.
+struct Mapped<'a> {
+    /// The map's category folders, sorted, each once.
+    categories: Vec<PathBuf>,
+    targets: Vec<Target<'a>>,
+    /// The obj_ids the map does not cover, with how many objects of the frames each is.
+    unmapped: BTreeMap<u64, usize>,
+    /// The obj_ids the map covers, for the note.
+    known: String,
+}
+
+impl<'a> Mapped<'a> {
+    /// An error where the map covers no object of the frames.
+    fn new(
+        frames: &'a [Frame],
+        map: &BTreeMap<u64, ObjectCategory>,
+        map_file: &Path,
+    ) -> Result<Self> {
+        let mut categories: Vec<PathBuf> = map.values().map(|c| c.category.clone()).collect();
+        categories.sort();
+        categories.dedup();
+        let known = format!(
+            "{} (it maps {})",
+            map_file.display(),
+            map.keys()
+                .map(|k| k.to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        let mut targets = Vec::new();
+        let mut unmapped = BTreeMap::new();
+        let mut first_unmapped = None;
+        for frame in frames {
+            for object in &frame.objects {
+                let Some(entry) = map.get(&object.obj_id) else {
+                    *unmapped.entry(object.obj_id).or_insert(0) += 1;
+                    first_unmapped.get_or_insert((frame, object));
+                    continue;
+                };
+                let category = categories
+                    .iter()
+                    .position(|c| *c == entry.category)
+                    .expect("every mapped category is listed");
+                targets.push(Target {
+                    frame,
+                    object,
+                    category,
+                });
+            }
+        }
+        if let (true, Some((frame, object))) = (targets.is_empty(), first_unmapped) {
+            bail!(
+                "no object of the frames is in the map: {}/scene_gt.json image {} object {}: \
+                 obj_id {} is not in {known}",
+                frame.scene,
+                frame.image,
+                object.gt_index,
+                object.obj_id,
+            );
+        }
+        Ok(Self {
+            categories,
+            targets,
+            unmapped,
+            known,
+        })
+    }
+
+    /// What was skipped, in words (None: nothing).
+    fn skipped(&self) -> Option<String> {
+        if self.unmapped.is_empty() {
+            return None;
+        }
+        let count: usize = self.unmapped.values().sum();
+        let ids: Vec<String> = self
+            .unmapped
+            .iter()
+            .map(|(id, n)| format!("{id} ({n})"))
+            .collect();
+        Some(format!(
+            "{count} object{} skipped, their obj_id not in {}: {}",
+            if count == 1 { "" } else { "s" },
+            self.known,
+            ids.join(", ")
+        ))
+    }
+}
+
+fn describe(frames: &[Frame], mapped: &Mapped) -> String {
     let mut scenes: Vec<&str> = frames.iter().map(|f| f.scene.as_str()).collect();
     scenes.dedup();
     let mut cameras: Vec<String> = frames
@@ -422,11 +496,16 @@ fn describe(frames: &[Frame], units: usize) -> String {
     cameras.sort();
     cameras.dedup();
     format!(
-        "{} images of BOP scene{} {} ({units} objects, each a unit); camera{} {} (cam_K as BOP gives it); \
+        "{} images of BOP scene{} {} ({} objects, each a unit{}); camera{} {} (cam_K as BOP gives it); \
          the depth measured by the sensor (BOP depth images), its holes unknown",
         frames.len(),
         if scenes.len() > 1 { "s" } else { "" },
         scenes.join(", "),
+        mapped.targets.len(),
+        mapped
+            .skipped()
+            .map(|skipped| format!("; {skipped}"))
+            .unwrap_or_default(),
         if cameras.len() > 1 { "s" } else { "" },
         cameras.join("; ")
     )

@@ -116,6 +116,35 @@ fn occluded_noisy_frames_on_a_table() {
     for z in column(&out, "z_error") {
         assert!(z.abs() < 3e-3, "the surface {} mm off in depth", 1e3 * z);
     }
+    // A BOP scene annotates every object in view, and a category map covers some: an
+    // object whose obj_id the map lacks is skipped and counted, not an error.
+    let scene = frames.join("000000");
+    edit_json(&scene.join("scene_gt.json"), |v| {
+        let mut other = v["0"][0].clone();
+        other["obj_id"] = serde_json::json!(99);
+        v["0"].as_array_mut().unwrap().push(other);
+    });
+    for folder in ["mask_visib", "mask"] {
+        let masks = scene.join(folder);
+        std::fs::copy(
+            masks.join("000000_000000.png"),
+            masks.join("000000_000001.png"),
+        )
+        .unwrap();
+    }
+    let one = dir.join("one");
+    ok(&[&run[..], &["--images", "000000/0", "--out", s(&one)]].concat());
+    assert_eq!(
+        self::rows(&one).len(),
+        1,
+        "the mapped object alone is a unit"
+    );
+    let table = std::fs::read_to_string(one.join("table.md")).unwrap();
+    assert!(
+        table.contains("1 objects, each a unit; 1 object skipped, their obj_id not in")
+            && table.contains(": 99 (1)"),
+        "{table}"
+    );
 }
 
 #[test]
@@ -316,10 +345,15 @@ fn bad_bop_input_names_the_file_and_key() {
         &good,
         "unknown_obj_id",
         |scene| {
+            // Skipped where some object is in the map (occluded_noisy_frames_on_a_table).
             edit_json(&scene.join("scene_gt.json"), |v| {
-                v["0"][0]["obj_id"] = serde_json::json!(7);
+                for objects in v.as_object_mut().unwrap().values_mut() {
+                    for object in objects.as_array_mut().unwrap() {
+                        object["obj_id"] = serde_json::json!(7);
+                    }
+                }
             })
         },
-        "obj_id 7 is not in",
+        "no object of the frames is in the map: 000000/scene_gt.json image 0 object 0: obj_id 7 is not in",
     );
 }
