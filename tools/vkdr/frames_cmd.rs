@@ -399,7 +399,7 @@ struct Mapped<'a> {
 }
 
 impl<'a> Mapped<'a> {
-    /// An error where the map covers no object of the frames.
+    /// An error where the map covers no object of the frames, or they have none.
     fn new(
         frames: &'a [Frame],
         map: &BTreeMap<u64, ObjectCategory>,
@@ -437,7 +437,10 @@ impl<'a> Mapped<'a> {
                 });
             }
         }
-        if let (true, Some((frame, object))) = (targets.is_empty(), first_unmapped) {
+        if targets.is_empty() {
+            let Some((frame, object)) = first_unmapped else {
+                bail!("the frames annotate no object: each image's list in scene_gt.json is empty");
+            };
             bail!(
                 "no object of the frames is in the map: {}/scene_gt.json image {} object {}: \
                  obj_id {} is not in {known}",

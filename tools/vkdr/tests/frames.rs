@@ -356,4 +356,16 @@ fn bad_bop_input_names_the_file_and_key() {
         },
         "no object of the frames is in the map: 000000/scene_gt.json image 0 object 0: obj_id 7 is not in",
     );
+    refused(
+        &good,
+        "no_objects",
+        |scene| {
+            edit_json(&scene.join("scene_gt.json"), |v| {
+                for objects in v.as_object_mut().unwrap().values_mut() {
+                    *objects = serde_json::json!([]);
+                }
+            })
+        },
+        "the frames annotate no object",
+    );
 }
