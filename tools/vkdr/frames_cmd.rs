@@ -63,6 +63,12 @@ pub struct Args {
     /// the mean of the image's step x step); 0: at the image's own pixels.
     #[arg(long, default_value_t = vkdr::register::DETAIL)]
     detail: u32,
+    /// Register an object only where its visible mask shows at least this share of its
+    /// silhouette in the image (BOP's visib_fract; BOP's targets need 0.1): the silhouette
+    /// from the scene's mask/ where present, else the model rendered at the annotated
+    /// pose. An object under it is a failed unit saying so; 0: every object.
+    #[arg(long, default_value_t = 0.1)]
+    min_visible: f64,
     #[command(flatten)]
     depth_loss: DepthLossArgs,
     #[command(flatten)]
@@ -74,6 +80,9 @@ pub struct Args {
 /// The evaluation's settings from the flags (the camera and distance are each frame's).
 fn settings(args: &Args) -> Result<EvalSettings> {
     args.renamed.check()?;
+    if !(0.0..=1.0).contains(&args.min_visible) {
+        bail!("--min-visible must be 0 to 1, not {}", args.min_visible);
+    }
     if !(2..=1000).contains(&args.trials) {
         bail!(
             "--trials must be 2 to 1000 (a spread needs two), not {}",
@@ -215,10 +224,17 @@ pub fn run(args: &Args) -> Result<()> {
         let obj_id = target.object.obj_id;
         // A unit that fails is a row of the failures with its reason; the others go on.
         let evaluated = (|| -> Result<eval::Row> {
+            let frame = target.frame;
+            let pose = map[&obj_id]
+                .model_to_category
+                .inverse()
+                .followed_by(&target.object.model_to_camera);
+            let model = &models[&obj_id];
+            check_visible_share(&ctx, &registrar, frame, target.object, model, pose, args)?;
             if let Entry::Vacant(slot) = references.entry(obj_id) {
                 let model = vkdr_app::reference::Model {
                     space,
-                    test: &models[&obj_id],
+                    test: model,
                     seed: obj_id,
                     cpd: &base.cpd,
                     scale: 1.0,
@@ -234,11 +250,6 @@ pub fn run(args: &Args) -> Result<()> {
                 .context("the model's reference")?;
                 slot.insert(reference);
             }
-            let frame = target.frame;
-            let pose = map[&obj_id]
-                .model_to_category
-                .inverse()
-                .followed_by(&target.object.model_to_camera);
             let settings = EvalSettings {
                 camera: frame.camera,
                 distance: pose.translation.length(),
@@ -252,7 +263,7 @@ pub fn run(args: &Args) -> Result<()> {
                 space,
                 category,
                 name,
-                &models[&obj_id],
+                model,
                 &settings,
                 TrialSource::Frame {
                     scene: &scene,
@@ -545,6 +556,51 @@ fn model_in_category(entry: &ObjectCategory) -> Result<Mesh> {
 
 /// One object of a frame as a trial's scene: the visible mask, with the pixels the whole
 /// mask adds (hidden by something in front) unknown, and the frame's depth.
+/// An error where the object's visible mask shows less than `--min-visible` of its
+/// silhouette in the image (`mask/` where the scene has it, else `model` rendered at
+/// `pose`); an object not seen at all is left to the registration's own refusal.
+fn check_visible_share(
+    ctx: &Context,
+    registrar: &Registrar,
+    frame: &Frame,
+    object: &FrameObject,
+    model: &Mesh,
+    pose: Pose,
+    args: &Args,
+) -> Result<()> {
+    let count = |mask: &[f32]| mask.iter().filter(|&&m| m > 0.5).count();
+    let visible = count(&object.visible);
+    if args.min_visible <= 0.0 || visible == 0 {
+        return Ok(());
+    }
+    let whole = match &object.whole {
+        Some(whole) => count(whole),
+        None => {
+            let view = View {
+                camera: frame.camera,
+                pose,
+            };
+            let g = registrar.renderer().rasterizer().render(
+                ctx,
+                model,
+                &[view],
+                vkdr::raster::Outputs::Ids,
+            )?;
+            g.ids.iter().filter(|&&id| id != 0).count()
+        }
+    };
+    let share = visible as f64 / whole.max(visible) as f64;
+    if share < args.min_visible {
+        bail!(
+            "{:.1}% of the object's silhouette is visible ({visible} of {whole} pixels), \
+             under --min-visible {} (BOP's targets need 0.1): not registered",
+            100.0 * share,
+            args.min_visible
+        );
+    }
+    Ok(())
+}
+
 fn frame_scene(frame: &Frame, object: &FrameObject, pose: Pose) -> Result<TrialScene> {
     let mut mask = object.visible.clone();
     if let Some(whole) = &object.whole {

@@ -326,3 +326,58 @@ fn an_object_cut_by_the_border_and_one_out_of_view() {
         assert!(t["z_error"].as_f64().unwrap().abs() <= 0.008, "{t}");
     }
 }
+
+/// An object of which a sliver shows (the mug's top rows: a few per cent of its
+/// silhouette, which the model rendered at the annotated pose gives) is under BOP's 10%
+/// and a failed unit that says so, before any registration or reference.
+#[test]
+fn a_sliver_of_an_object_is_under_bop_s_visible_share() {
+    let bop = real_set();
+    let dir = folder("sliver");
+    let frames = dir.join("frames");
+    without_table(&frames, &bop);
+    let path = frames.join("000000/mask_visib/000001_000000.png");
+    let mut mask = image::open(&path).unwrap().to_luma8();
+    let top = mask
+        .enumerate_pixels()
+        .filter(|(_, _, m)| m.0[0] > 0)
+        .map(|(_, y, _)| y)
+        .min()
+        .unwrap();
+    for (_, y, m) in mask.enumerate_pixels_mut() {
+        if y >= top + 6 {
+            m.0[0] = 0;
+        }
+    }
+    mask.save(&path).unwrap();
+    let out = dir.join("out");
+    let run = [
+        "eval-frames",
+        s(&frames),
+        "--images",
+        "000000/1",
+        "--trials",
+        "2",
+    ];
+    let result = vkdr(&[&run[..], &["--out", s(&out)]].concat());
+    let err = String::from_utf8_lossy(&result.stderr);
+    assert!(!result.status.success(), "{err}");
+    let failures = table(&out)["failures"].as_array().unwrap().clone();
+    assert_eq!(failures.len(), 1, "{failures:?}");
+    let failure = failures[0].as_str().unwrap();
+    assert!(failure.contains("under --min-visible 0.1"), "{failure}");
+    let share: f64 = failure
+        .split("): ")
+        .nth(1)
+        .unwrap()
+        .split('%')
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!((0.5..10.0).contains(&share), "{failure}");
+    assert!(
+        !err.contains("oracle"),
+        "a reference computed for it: {err}"
+    );
+}
