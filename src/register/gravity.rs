@@ -9,6 +9,11 @@ use crate::Pose;
 /// loss (`glsl/include/objective.glsl`, GRAVITY_WEIGHT).
 pub const GRAVITY_WEIGHT: f64 = 100.0;
 
+/// [`Gravity::tolerance`] where a caller does not choose one: 1 degree, in radians (the
+/// command line's `--tilt-tolerance`, the Python module's `tilt_tolerance` and the
+/// evaluations' default).
+pub const TILT_TOLERANCE: f64 = 1f64.to_radians();
+
 /// Which way is up: a robot knows it from its table plane or its IMU. The registration
 /// keeps the object's up axis within `tolerance` of `direction` (a loss of
 /// [`GRAVITY_WEIGHT`] per squared radian beyond it), and starts levelled; the rotation

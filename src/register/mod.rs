@@ -37,7 +37,7 @@ mod region;
 mod starts;
 mod task;
 
-pub use gravity::{Gravity, GRAVITY_WEIGHT};
+pub use gravity::{Gravity, GRAVITY_WEIGHT, TILT_TOLERANCE};
 pub use iterate::PassTimes;
 pub use job::{all_views, Job, OtherView};
 pub use observation::{Observation, Plan, PoseMode, ViewImages};

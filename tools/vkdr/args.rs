@@ -199,7 +199,7 @@ impl TiltArgs {
     /// a gravity to apply it to.
     pub fn radians(&self, gravity: bool) -> Result<f64> {
         let Some(degrees) = self.degrees else {
-            return Ok(1f64.to_radians());
+            return Ok(vkdr::register::TILT_TOLERANCE);
         };
         if !gravity {
             anyhow::bail!("--tilt-tolerance is the tolerance of --gravity: give --gravity too");

@@ -192,6 +192,7 @@ pub(crate) struct Options {
     pub(crate) up: DVec3,
     pub(crate) up_given: bool,
     pub(crate) gravity: Option<GravityOption>,
+    /// Radians.
     pub(crate) tilt_tolerance: f64,
     pub(crate) depth: DepthOptions,
     pub(crate) shading: (Option<[f64; 3]>, Option<f64>),
@@ -220,7 +221,7 @@ impl Options {
             up: DVec3::Y,
             up_given: false,
             gravity: None,
-            tilt_tolerance: 1.0,
+            tilt_tolerance: vkdr::register::TILT_TOLERANCE,
             depth: DepthOptions {
                 sigma: None,
                 weight: None,
@@ -280,7 +281,10 @@ impl Options {
                         Some(GravityOption::Direction(DVec3::from_array(d)))
                     }
                 }
-                "tilt_tolerance" => options.tilt_tolerance = get!("degrees"),
+                "tilt_tolerance" => {
+                    let degrees: f64 = get!("degrees");
+                    options.tilt_tolerance = degrees.to_radians();
+                }
                 "depth_sigma" => options.depth.sigma = get!("metres"),
                 "depth_weight" => options.depth.weight = get!("a weight"),
                 "occlusion" => options.depth.occlusion = get!("metres"),
@@ -368,7 +372,7 @@ impl Options {
 
     /// Which way is up, where asked: given, or from the observed depth.
     pub(crate) fn gravity(&self, looks: &Looks) -> vkdr::Result<Option<Gravity>> {
-        let tolerance = self.tilt_tolerance.to_radians();
+        let tolerance = self.tilt_tolerance;
         let gravity = match &self.gravity {
             None => return Ok(None),
             Some(GravityOption::Direction(direction)) => Gravity {

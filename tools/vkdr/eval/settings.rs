@@ -274,7 +274,7 @@ impl Default for EvalSettings {
             depth_holes: 0.0,
             test_scale: 1.0,
             gravity: None,
-            tilt_tolerance: 1f64.to_radians(),
+            tilt_tolerance: vkdr::register::TILT_TOLERANCE,
             gravity_fallback: true,
         }
     }
