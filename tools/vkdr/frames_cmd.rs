@@ -230,7 +230,16 @@ pub fn run(args: &Args) -> Result<()> {
                 .inverse()
                 .followed_by(&target.object.model_to_camera);
             let model = &models[&obj_id];
-            check_visible_share(&ctx, &registrar, frame, target.object, model, pose, args)?;
+            let min_visible = args.min_visible;
+            check_visible_share(
+                &ctx,
+                &registrar,
+                frame,
+                target.object,
+                model,
+                pose,
+                min_visible,
+            )?;
             if let Entry::Vacant(slot) = references.entry(obj_id) {
                 let model = vkdr_app::reference::Model {
                     space,
@@ -556,7 +565,7 @@ fn model_in_category(entry: &ObjectCategory) -> Result<Mesh> {
 
 /// One object of a frame as a trial's scene: the visible mask, with the pixels the whole
 /// mask adds (hidden by something in front) unknown, and the frame's depth.
-/// An error where the object's visible mask shows less than `--min-visible` of its
+/// An error where the object's visible mask shows less than `min_visible` of its
 /// silhouette in the image (`mask/` where the scene has it, else `model` rendered at
 /// `pose`); an object not seen at all is left to the registration's own refusal.
 fn check_visible_share(
@@ -566,11 +575,11 @@ fn check_visible_share(
     object: &FrameObject,
     model: &Mesh,
     pose: Pose,
-    args: &Args,
+    min_visible: f64,
 ) -> Result<()> {
     let count = |mask: &[f32]| mask.iter().filter(|&&m| m > 0.5).count();
     let visible = count(&object.visible);
-    if args.min_visible <= 0.0 || visible == 0 {
+    if min_visible <= 0.0 || visible == 0 {
         return Ok(());
     }
     let whole = match &object.whole {
@@ -590,12 +599,12 @@ fn check_visible_share(
         }
     };
     let share = visible as f64 / whole.max(visible) as f64;
-    if share < args.min_visible {
+    if share < min_visible {
         bail!(
             "{:.1}% of the object's silhouette is visible ({visible} of {whole} pixels), \
              under --min-visible {} (BOP's targets need 0.1): not registered",
             100.0 * share,
-            args.min_visible
+            min_visible
         );
     }
     Ok(())
