@@ -42,6 +42,13 @@ fn mean(row: &serde_json::Value, key: &str) -> f64 {
     trials.iter().map(|t| t[key].as_f64().unwrap()).sum::<f64>() / trials.len() as f64
 }
 
+/// The one failed unit of a run's table.json (asserting that exactly one failed).
+fn only_failure(table: &serde_json::Value) -> &str {
+    let failures = table["failures"].as_array().unwrap();
+    assert_eq!(failures.len(), 1, "{failures:?}");
+    failures[0].as_str().unwrap()
+}
+
 fn row<'a>(table: &'a serde_json::Value, category: &str) -> &'a serde_json::Value {
     table["rows"]
         .as_array()
@@ -229,9 +236,7 @@ fn a_frame_without_a_support_plane_is_a_row_not_an_exit() {
     assert!(!result.status.success());
     assert!(err.contains("1 of 2 units failed"), "{err}");
     let table = self::table(&out);
-    let failures = table["failures"].as_array().unwrap();
-    assert_eq!(failures.len(), 1);
-    assert!(failures[0].as_str().unwrap().starts_with("000000/000001/0"));
+    assert!(only_failure(&table).starts_with("000000/000001/0"));
     assert_eq!(table["rows"].as_array().unwrap().len(), 1);
     assert_eq!(table["rows"][0]["instance"], "000000/000003/0");
     let md = std::fs::read_to_string(out.join("table.md")).unwrap();
@@ -309,9 +314,7 @@ fn an_object_cut_by_the_border_and_one_out_of_view() {
     assert!(!result.status.success(), "{err}");
     assert!(err.contains("1 of 2 units failed"), "{err}");
     let table = table(&out);
-    let failures = table["failures"].as_array().unwrap();
-    assert_eq!(failures.len(), 1, "{failures:?}");
-    let failure = failures[0].as_str().unwrap();
+    let failure = only_failure(&table);
     assert!(failure.starts_with("000000/000003/0"), "{failure}");
     assert!(failure.contains("shows nothing of the object"), "{failure}");
     // Measured (lavapipe, 2026-11-29): as seen 3.0 and 5.5 mm (2.6 mm uncut), tilt 0.9
@@ -362,9 +365,8 @@ fn a_sliver_of_an_object_is_under_bop_s_visible_share() {
     let result = vkdr(&[&run[..], &["--out", s(&out)]].concat());
     let err = String::from_utf8_lossy(&result.stderr);
     assert!(!result.status.success(), "{err}");
-    let failures = table(&out)["failures"].as_array().unwrap().clone();
-    assert_eq!(failures.len(), 1, "{failures:?}");
-    let failure = failures[0].as_str().unwrap();
+    let table = table(&out);
+    let failure = only_failure(&table);
     assert!(failure.contains("under --min-visible 0.1"), "{failure}");
     let share: f64 = failure
         .split("): ")
