@@ -67,7 +67,7 @@ pub struct Args {
     /// silhouette in the image (BOP's visib_fract; BOP's targets need 0.1): the silhouette
     /// from the scene's mask/ where present, else the model rendered at the annotated
     /// pose. An object under it is a failed unit saying so; 0: every object.
-    #[arg(long, default_value_t = 0.1)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.1)]
     min_visible: f64,
     #[command(flatten)]
     depth_loss: DepthLossArgs,

@@ -346,6 +346,10 @@ fn bad_input_exits_non_zero_naming_the_problem_and_keeps_existing_files() {
             "--tilt-tolerance is the tolerance of --gravity",
         ),
         case(
+            &["eval-frames", "data", "--min-visible", "-0.5", "--out", "OUT"],
+            "--min-visible must be 0 to 1, not -0.5",
+        ),
+        case(
             &["eval", "--dataset", "empty_tests", "--out", "OUT"],
             "no meshes",
         ),
