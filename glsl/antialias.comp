@@ -94,6 +94,9 @@ void main() {
         uint view = view_of(index);
         ivec2 p = pixel_of(index);
         vec4 a = antialiased_value(view, p, size, ids[index]);
+        // Against a mask the depth channel is 0 where the depth cannot count (as at the
+        // pixels classify.comp does not list).
+        if (COVERAGE != 0u && !depth_measured(index)) a[CHANNELS - 1u] = 0.0;
         store_antialiased(index, a);
         largest_loss = max(largest_loss, loss_magnitudes(index, a));
         vec3 terms = loss_excess(index, a);

@@ -73,7 +73,7 @@ void handle_pixel(uint index) {
     ivec2 p = pixel_of(index);
     const ivec2 steps[4] = STEPS;
     uint id = ids[index];
-    bool interpolated = CHANNELS > 0u && id != 0u;
+    bool interpolated = id != 0u && interpolated_inside(index);
     bool any_pair = false;
     for (int s = 0; s < 4; ++s) {
         ivec2 q = clamp(p + steps[s], ivec2(0), size - 1);

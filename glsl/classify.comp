@@ -1,8 +1,9 @@
 #version 460
 // Stage 0, per pixel of each view's box (bounds.comp; z = view): when no pair with a
 // neighbour matters (pair_matters: with coverage, the pixel and its four neighbours are
-// all covered or all background) and nothing is interpolated, its antialiased value is
-// its coverage; write it and add its loss terms less the background's (loss_excess) to
+// all covered or all background) and nothing is interpolated (interpolated_inside in
+// loss.glsl: with a mask and depth, only where depth is measured), its antialiased value
+// is its coverage; write it and add its loss terms less the background's (loss_excess) to
 // stats_fixed, one int64 fixed-point sum per subgroup (the same sums in any order). Every
 // other pixel is appended to the work list for antialias.comp and antialias_backward.comp,
 // and each pair that matters of a pixel with its right and lower neighbours to the pair
@@ -80,11 +81,12 @@ void main() {
         pairs_x |= uint(pair_x) << uint(r);
         pairs_y |= uint(pair_y) << uint(r);
         bool any_pair = pair_x || pair_matters(id, left) || pair_y || pair_matters(id, up);
-        if (any_pair || (CHANNELS > 0u && id != 0u)) {
+        if (any_pair || (id != 0u && interpolated_inside(index))) {
             listed |= 1u << uint(r);
         } else if (id != 0u) {
-            // Covered, against a mask: one channel, no interpolation.
-            antialiased[index] = 1.0;
+            // Covered, against a mask, and no depth to compare: coverage 1 (the depth
+            // channel, if any, stays 0), no interpolation.
+            antialiased[index * image_channels()] = 1.0;
             terms += loss_excess(index, vec4(1.0, 0.0, 0.0, 0.0));
         }
         // Background away from the object: value 0 (the whole image is cleared before),

@@ -974,6 +974,7 @@ fn assert_region_matches_whole(case: &Case) {
         width: (hi.0 + 4).min(w) - lo.0.saturating_sub(3),
         height: (hi.1 + 4).min(h) - lo.1.saturating_sub(3),
         step: 1,
+        depth_step: 1,
     };
     assert!(region.width * region.height < w * h * 3 / 4, "{region:?}");
     let observed = region.crop(&case.observed, w);

@@ -71,6 +71,19 @@ float depth_term_gradient(float r, float n) {
 // occluded set changes with the rendered depth (piecewise, as visibility does).
 bool unknown(uint index) { return observed[index * image_channels()] < 0.0; }
 
+// Whether pixel `index`'s rendered depth can count for anything (compared, or tested for
+// occlusion): the observation measured depth there and the pixel is known. Against a mask
+// (COVERAGE = 1) nothing else needs the depth, so a covered pixel where it cannot count
+// is not interpolated away from the silhouette (classify.comp) and its depth channel is 0.
+bool depth_measured(uint index) {
+    return DEPTH != 0u && observed[index * CHANNELS + CHANNELS - 1u] > 0.0 && !unknown(index);
+}
+
+// Whether a covered pixel away from the silhouette needs its attributes interpolated.
+bool interpolated_inside(uint index) {
+    return CHANNELS > 0u && (COVERAGE == 0u || depth_measured(index));
+}
+
 bool occluded(uint index, vec4 a) {
     if (DEPTH == 0u || pc.occlusion <= 0.0 || ids[index] == 0u) return false;
     float o = observed[index * CHANNELS + CHANNELS - 1u];

@@ -423,7 +423,9 @@ pub struct Evaluation {
     /// with shading, dL/d(shade)).
     pub attribute_gradient: Vec<f32>,
     /// The antialiased compared image, `[view][row][column][channel]` (with depth, the last
-    /// channel is the rendered depth at each covered pixel centre, not antialiased).
+    /// channel is the rendered depth at each covered pixel centre, not antialiased;
+    /// against a mask only where the observed depth can count, measured and known, and 0
+    /// elsewhere: it is not interpolated there).
     pub antialiased: Vec<f32>,
     /// Triangle id + 1 per pixel, `[view][row][column]`.
     pub ids: Vec<u32>,

@@ -445,7 +445,11 @@ pub fn evaluate(problem: &Problem, positions: &[DVec3], poses: &[RigidPose]) -> 
                             view_loss += depth_term(&loss, z - depth[i], n as f64);
                         }
                         antialiased.extend_from_slice(&a[i * channels..(i + 1) * channels]);
-                        antialiased.push(z);
+                        // Against a mask, 0 where the depth cannot count (not measured,
+                        // or the pixel unknown: loss.glsl depth_measured).
+                        let measured = depth[i] > 0.0 && observed[i * channels] >= 0.0;
+                        let coverage = problem.shading.is_none() && problem.attributes.is_none();
+                        antialiased.push(if coverage && !measured { 0.0 } else { z });
                     }
                 }
             }

@@ -47,7 +47,8 @@ impl Registrar {
             let cut_jobs: Vec<Job> = jobs.iter().zip(&cut).map(|(j, c)| c.job(j)).collect();
             self.run_whole(ctx, &cut_jobs, stage, on_chunk)
         };
-        let Some(region) = Region::of_interest(jobs, stage.params.detail)? else {
+        let detail = (stage.params.detail, stage.params.depth_detail);
+        let Some(region) = Region::of_interest(jobs, detail.0, detail.1)? else {
             return run_in(None);
         };
         let staged = run_in(Some(&region))?;
@@ -58,7 +59,7 @@ impl Registrar {
         {
             return Ok(staged);
         }
-        run_in(Region::whole(&jobs[0].view.camera, region.step).as_ref())
+        run_in(region.whole(&jobs[0].view.camera).as_ref())
     }
 
     /// [`Registrar::run`] on the jobs' whole images.

@@ -46,6 +46,11 @@ pub struct Job<'a> {
     /// cut to a region of interest of a larger image keeps the larger image's
     /// ([`crate::diff::SceneDesc::loss_pixels`]).
     pub loss_pixels: Option<u64>,
+    /// The observed depth holds measurements at every `depth_every`-th pixel along each
+    /// axis only (0 elsewhere), each standing for `depth_every` squared pixels: the depth
+    /// loss's weight is multiplied by that (a job cut to a [`super::Region`] with a
+    /// `depth_step`). 1: every pixel.
+    pub depth_every: u32,
 }
 
 impl<'a> Job<'a> {
@@ -60,6 +65,7 @@ impl<'a> Job<'a> {
             others: &[],
             gravity: None,
             loss_pixels: None,
+            depth_every: 1,
         }
     }
 

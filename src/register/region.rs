@@ -41,6 +41,11 @@ pub struct Region {
     pub height: u32,
     /// The image's pixels per region pixel along each axis (1: the image's own).
     pub step: u32,
+    /// The depth is compared at every `depth_step`-th region pixel along each axis (its
+    /// first row and column included), each of them counting for `depth_step` squared
+    /// pixels (1: at every pixel). The depth is smooth over the object where the mask is
+    /// not, and against a mask a pixel without a depth to compare costs no interpolation.
+    pub depth_step: u32,
 }
 
 /// A box of image coordinates.
@@ -107,11 +112,13 @@ impl Region {
     /// a margin of a fifth of its larger side and 8 pixels (`MARGIN_SHARE`, `MARGIN_PIXELS`),
     /// within the image. Where the object (the larger of the mask's box and a start's
     /// silhouette box) spans more than `detail` pixels (and `detail` is not 0), the region
-    /// is rendered at the coarsest whole step that keeps at least `detail` across it. None
+    /// is rendered at the coarsest whole step that keeps at least `detail` across it, and
+    /// its depth compared at the coarsest whole step of the region's pixels that keeps at
+    /// least `depth_detail` across it (with either 0: at every pixel). None
     /// where it would be the image's own pixels and hold more than half of them
     /// (`LARGEST_SHARE`), where a job has further views, or where a start lies behind the
     /// camera.
-    pub fn of_interest(jobs: &[Job], detail: u32) -> Result<Option<Region>> {
+    pub fn of_interest(jobs: &[Job], detail: u32, depth_detail: u32) -> Result<Option<Region>> {
         let Some(first) = jobs.first() else {
             return Ok(None);
         };
@@ -152,6 +159,11 @@ impl Region {
         } else {
             ((object / detail as f64).floor() as u32).max(1)
         };
+        let depth_step = if detail == 0 || depth_detail == 0 {
+            1
+        } else {
+            ((object / step as f64 / depth_detail as f64).floor() as u32).max(1)
+        };
         let margin = MARGIN_SHARE * bounds.side() + MARGIN_PIXELS;
         let clamp = |v: f64, limit: usize| v.clamp(0.0, limit as f64) as u32;
         let (x0, x1) = (
@@ -177,12 +189,15 @@ impl Region {
             width,
             height,
             step,
+            depth_step,
         }))
     }
 
-    /// The whole image of `camera` at a `step` above 1 (its last columns and rows dropped
-    /// where its size is not a multiple of the step); None at a step of 1.
-    pub fn whole(camera: &Camera, step: u32) -> Option<Region> {
+    /// The whole image of `camera` at this region's steps, the step above 1 (its last
+    /// columns and rows dropped where its size is not a multiple of the step); None at a
+    /// step of 1.
+    pub fn whole(&self, camera: &Camera) -> Option<Region> {
+        let step = self.step;
         let (width, height) = (camera.width / step * step, camera.height / step * step);
         (step > 1 && width > 0 && height > 0).then_some(Region {
             x: 0,
@@ -190,6 +205,7 @@ impl Region {
             width,
             height,
             step,
+            depth_step: self.depth_step,
         })
     }
 
@@ -252,18 +268,7 @@ impl Region {
                     out.push(mean(image, &known) as f32);
                 }
                 if let (Some(out), Some(image)) = (depth.as_mut(), job.depth) {
-                    let measured: Vec<usize> = pixels.filter(|&p| image[p] > 0.0).collect();
-                    let on_object: Vec<usize> = measured
-                        .iter()
-                        .copied()
-                        .filter(|&p| job.observed[p] > 0.0)
-                        .collect();
-                    let of = if on_object.is_empty() {
-                        &measured
-                    } else {
-                        &on_object
-                    };
-                    out.push(mean(image, of) as f32);
+                    out.push(mean_depth(image, job.observed, pixels));
                 }
             }
         }
@@ -273,28 +278,43 @@ impl Region {
             depth,
             camera: self.camera(&job.view.camera),
             loss_pixels: 0,
+            depth_step: 1,
         }
     }
 
-    /// `job`'s images cut to the region (and averaged over its steps).
+    /// `job`'s images cut to the region (and averaged over its steps), the depth kept at
+    /// every `depth_step`-th pixel along each axis only.
     pub(super) fn cut(&self, job: &Job) -> Cut {
         let width = job.view.camera.width;
         let whole = job
             .loss_pixels
             .unwrap_or(job.view.camera.width as u64 * job.view.camera.height as u64);
-        if self.step > 1 {
-            return Cut {
+        let mut cut = if self.step > 1 {
+            Cut {
                 loss_pixels: (whole / (self.step as u64 * self.step as u64)).max(1),
                 ..self.coarse(job)
-            };
+            }
+        } else {
+            Cut {
+                observed: self.crop(job.observed, width),
+                shaded: job.shaded.map(|s| self.crop(s, width)),
+                depth: job.depth.map(|d| self.crop(d, width)),
+                camera: self.camera(&job.view.camera),
+                loss_pixels: whole,
+                depth_step: 1,
+            }
+        };
+        let ds = self.depth_step as usize;
+        if let Some(depth) = cut.depth.as_mut().filter(|_| ds > 1) {
+            let columns = cut.camera.width as usize;
+            for (i, d) in depth.iter_mut().enumerate() {
+                if !(i / columns).is_multiple_of(ds) || !(i % columns).is_multiple_of(ds) {
+                    *d = 0.0;
+                }
+            }
+            cut.depth_step = self.depth_step;
         }
-        Cut {
-            observed: self.crop(job.observed, width),
-            shaded: job.shaded.map(|s| self.crop(s, width)),
-            depth: job.depth.map(|d| self.crop(d, width)),
-            camera: self.camera(&job.view.camera),
-            loss_pixels: whole,
-        }
+        cut
     }
 
     /// Whether `fit`'s silhouette (at its pose, through `job`'s camera) stays clear of the
@@ -317,6 +337,24 @@ impl Region {
     }
 }
 
+/// The depth of a block of image pixels `pixels` (indices into `depth` and `observed`):
+/// the mean measurement of the object's pixels (of all measured ones where none shows the
+/// object; 0 where none is measured).
+fn mean_depth(depth: &[f32], observed: &[f32], pixels: impl Iterator<Item = usize>) -> f32 {
+    let measured: Vec<usize> = pixels.filter(|&p| depth[p] > 0.0).collect();
+    let on_object: Vec<usize> = measured
+        .iter()
+        .copied()
+        .filter(|&p| observed[p] > 0.0)
+        .collect();
+    let of = if on_object.is_empty() {
+        &measured
+    } else {
+        &on_object
+    };
+    (of.iter().map(|&p| depth[p] as f64).sum::<f64>() / of.len().max(1) as f64) as f32
+}
+
 /// A job's images cut to a region, and the region's camera.
 pub(super) struct Cut {
     observed: Vec<f32>,
@@ -324,6 +362,7 @@ pub(super) struct Cut {
     depth: Option<Vec<f32>>,
     camera: Camera,
     loss_pixels: u64,
+    depth_step: u32,
 }
 
 impl Cut {
@@ -338,6 +377,7 @@ impl Cut {
                 ..job.view
             },
             loss_pixels: Some(self.loss_pixels),
+            depth_every: self.depth_step,
             ..*job
         }
     }
@@ -377,6 +417,7 @@ mod tests {
             width: 10,
             height: 8,
             step: 2,
+            depth_step: 1,
         };
         let cut = region.cut(&job);
         let coarse = cut.job(&job);
@@ -409,12 +450,96 @@ mod tests {
         assert_eq!(d[15], 2.0);
     }
 
+    /// A mask 200 pixels across (the mean shape's silhouette smaller): at detail 64 a step
+    /// of 3 (66 pixels across), and the depth at every second of them at depth detail 32,
+    /// every fourth at 16, every one at 0 or with detail 0.
+    #[test]
+    fn the_depth_step_keeps_the_depth_detail() {
+        let space = crate::shape::random_space(&mut crate::rng::Rng::new(1), 3, 2);
+        let camera = Camera::new(1000.0, 1000.0, 320.0, 240.0, 640, 480).unwrap();
+        let observed: Vec<f32> = (0..640 * 480)
+            .map(|i| {
+                ((100..300).contains(&(i % 640)) && (100..300).contains(&(i / 640))) as u8 as f32
+            })
+            .collect();
+        let pose = Pose::new([0.0, 0.0, 3.0], [0.0; 3]).unwrap();
+        let job = Job::new(&space, &observed, View { camera, pose });
+        let steps = |detail, depth_detail| {
+            let region = Region::of_interest(&[job], detail, depth_detail)
+                .unwrap()
+                .unwrap();
+            (region.step, region.depth_step)
+        };
+        assert_eq!(steps(64, 32), (3, 2));
+        assert_eq!(steps(64, 16), (3, 4));
+        assert_eq!(steps(64, 0), (3, 1));
+        assert_eq!(steps(0, 32), (1, 1));
+    }
+
+    /// With a depth step, the cut keeps the depth at every depth step's row and column
+    /// from the region's corner (the region pixel's own, the mean of its block), 0
+    /// elsewhere, and its job weighs each kept sample by the step squared.
+    #[test]
+    fn the_depth_is_kept_at_every_depth_step() {
+        let space = crate::shape::random_space(&mut crate::rng::Rng::new(1), 3, 2);
+        let camera = Camera::new(100.0, 90.0, 6.0, 4.0, 12, 8).unwrap();
+        let observed = vec![1.0f32; 96];
+        let depth: Vec<f32> = (0..96).map(|i| 1.0 + i as f32 / 100.0).collect();
+        let pose = Pose::new([0.0, 0.0, 1.0], [0.0; 3]).unwrap();
+        let job = Job::new(&space, &observed, View { camera, pose }).with_depth(&depth);
+        for step in [1, 2] {
+            let region = Region {
+                x: 1,
+                y: 2,
+                width: 10,
+                height: 6,
+                step,
+                depth_step: 2,
+            };
+            let cut = region.cut(&job);
+            let coarse = cut.job(&job);
+            assert_eq!(coarse.depth_every, 2);
+            let columns = (10 / step) as usize;
+            let d = coarse.depth.unwrap();
+            assert_eq!(d.len(), columns * (6 / step) as usize);
+            for (i, &z) in d.iter().enumerate() {
+                let (row, column) = (i / columns, i % columns);
+                if row % 2 == 0 && column % 2 == 0 {
+                    let (y, x, s) = (
+                        2 + step as usize * row,
+                        1 + step as usize * column,
+                        step as usize,
+                    );
+                    let image = &depth;
+                    let mean = (y..y + s)
+                        .flat_map(|r| (x..x + s).map(move |c| image[r * 12 + c] as f64))
+                        .sum::<f64>()
+                        / (s * s) as f64;
+                    assert!((z as f64 - mean).abs() < 1e-6, "{step} {i}: {z} {mean}");
+                } else {
+                    assert_eq!(z, 0.0, "{step} {i}");
+                }
+            }
+        }
+    }
+
     #[test]
     fn the_whole_image_at_a_step_drops_the_remainder() {
         let camera = Camera::new(100.0, 100.0, 6.5, 4.5, 13, 9).unwrap();
-        let whole = Region::whole(&camera, 2).unwrap();
-        assert_eq!((whole.width, whole.height, whole.step), (12, 8, 2));
-        assert_eq!(Region::whole(&camera, 1), None);
+        let at = |step| Region {
+            x: 0,
+            y: 0,
+            width: 2,
+            height: 2,
+            step,
+            depth_step: 3,
+        };
+        let whole = at(2).whole(&camera).unwrap();
+        assert_eq!(
+            (whole.width, whole.height, whole.step, whole.depth_step),
+            (12, 8, 2, 3)
+        );
+        assert_eq!(at(1).whole(&camera), None);
         assert_eq!(whole_steps(3, 8, 2, 13), Some((3, 6)));
         assert_eq!(whole_steps(8, 13, 2, 13), Some((7, 6)));
         assert_eq!(whole_steps(0, 13, 2, 13), None);

@@ -3,7 +3,7 @@
 use glam::{DMat3, DVec3};
 
 use crate::cpd::linalg::Matrix;
-use crate::diff::{ObservedDepth, Scene, SceneDesc};
+use crate::diff::{DepthLoss, ObservedDepth, Scene, SceneDesc};
 use crate::error::{Error, Result};
 use crate::gpu::{Buffer, Context};
 use crate::shape::ShapeSpace;
@@ -75,7 +75,13 @@ impl<'a> Task<'a> {
         };
         let depth = match (params.depth, job.depth) {
             (None, _) => None,
-            (Some(loss), Some(depth)) => Some(ObservedDepth { depth, loss }),
+            (Some(loss), Some(depth)) => Some(ObservedDepth {
+                depth,
+                loss: DepthLoss {
+                    weight: loss.weight * (job.depth_every as f64).powi(2),
+                    ..loss
+                },
+            }),
             (Some(_), None) => {
                 return Err(Error::InvalidInput(
                     "registration with depth needs the observed depth image".into(),

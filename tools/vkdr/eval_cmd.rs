@@ -238,6 +238,8 @@ fn settings(args: &Args) -> Result<EvalSettings> {
     settings.known_pose.hold_unseen &= !args.no_hold;
     settings.pose_noise.hold_unseen &= !args.no_hold;
     settings.known_pose.mask_first = args.mask_first;
+    settings.known_pose.depth_detail = args.depth_loss.depth_detail;
+    settings.pose_noise.depth_detail = args.depth_loss.depth_detail;
     settings.occluder = args.occluder;
     settings.table = args.table;
     if !(args.depth_holes.is_finite() && (0.0..=0.9).contains(&args.depth_holes)) {

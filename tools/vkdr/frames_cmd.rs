@@ -107,6 +107,8 @@ fn settings(args: &Args) -> Result<EvalSettings> {
     base.pose_noise.optimize_scale = !args.no_scale;
     base.known_pose.detail = args.detail;
     base.pose_noise.detail = args.detail;
+    base.known_pose.depth_detail = args.depth_loss.depth_detail;
+    base.pose_noise.depth_detail = args.depth_loss.depth_detail;
     // Before any work: a parameter out of range would fail every unit after its reference.
     base.known_pose_params().validate()?;
     base.pose_noise_params().validate()?;

@@ -461,6 +461,7 @@ pub fn run(args: &Args) -> Result<()> {
         optimize_scale: args.optimize_scale,
         hold_unseen: base.hold_unseen && !args.no_hold,
         mask_first: args.mask_first.unwrap_or(base.mask_first),
+        depth_detail: args.depth_loss.depth_detail,
         ..base
     };
     let gravity = match &args.gravity {

@@ -350,6 +350,10 @@ fn bad_input_exits_non_zero_naming_the_problem_and_keeps_existing_files() {
             "--min-visible must be 0 to 1, not -0.5",
         ),
         case(
+            &["eval-frames", "data", "--depth-detail", "4", "--out", "OUT"],
+            "depth detail 4 must be 0 (every pixel) or at least 8 samples",
+        ),
+        case(
             &["eval", "--dataset", "empty_tests", "--out", "OUT"],
             "no meshes",
         ),
