@@ -710,6 +710,36 @@ fn scale_is_found_with_depth() {
     assert_eq!(plain.scale, 1.0);
     assert!(e_scaled < 0.5 * e_plain, "{e_scaled} vs {e_plain}");
 
+    // The depth at every second pixel of the region each way (`depth_detail`), each
+    // sample weighted by 4: the loss at the start is the every-pixel one's up to the
+    // sampling (without the weight its depth part would be a quarter), and the scale is
+    // found as well.
+    let region = |depth_detail| RegisterParams {
+        detail: 48,
+        depth_detail,
+        ..params(true)
+    };
+    let every = registrar
+        .register(&ctx, job, &region(0), |_, _| {})
+        .unwrap();
+    let sampled = registrar
+        .register(&ctx, job, &region(24), |_, _| {})
+        .unwrap();
+    let (l_every, l_sampled) = (every.losses[0], sampled.losses[0]);
+    eprintln!(
+        "depth detail 24: first loss {l_sampled:.6} against {l_every:.6}, scale {:.4} (every pixel {:.4})",
+        sampled.scale, every.scale
+    );
+    assert!(
+        (l_sampled - l_every).abs() < 0.1 * l_every,
+        "{l_sampled} vs {l_every}"
+    );
+    assert!(
+        (sampled.scale - 1.2).abs() < 0.024,
+        "scale {}",
+        sampled.scale
+    );
+
     // The mask alone first (the known-pose schedule's stage before a fit with depth): its
     // iterations are a stage of their own, the fit goes on from its code and scale.
     use vkdr::register::{STAGE_FIT, STAGE_MASK_FIRST};

@@ -47,8 +47,8 @@ impl Registrar {
             let cut_jobs: Vec<Job> = jobs.iter().zip(&cut).map(|(j, c)| c.job(j)).collect();
             self.run_whole(ctx, &cut_jobs, stage, on_chunk)
         };
-        let detail = (stage.params.detail, stage.params.depth_detail);
-        let Some(region) = Region::of_interest(jobs, detail.0, detail.1)? else {
+        let (detail, depth_detail) = (stage.params.detail, stage.params.depth_detail);
+        let Some(region) = Region::of_interest(jobs, detail, depth_detail)? else {
             return run_in(None);
         };
         let staged = run_in(Some(&region))?;
