@@ -232,7 +232,6 @@ pub fn run(args: &Args) -> Result<()> {
                 .inverse()
                 .followed_by(&target.object.model_to_camera);
             let model = &models[&obj_id];
-            let min_visible = args.min_visible;
             check_visible_share(
                 &ctx,
                 &registrar,
@@ -240,7 +239,7 @@ pub fn run(args: &Args) -> Result<()> {
                 target.object,
                 model,
                 pose,
-                min_visible,
+                args.min_visible,
             )?;
             if let Entry::Vacant(slot) = references.entry(obj_id) {
                 let model = vkdr_app::reference::Model {
@@ -565,8 +564,6 @@ fn model_in_category(entry: &ObjectCategory) -> Result<Mesh> {
     Ok(model.with_points(&points)?)
 }
 
-/// One object of a frame as a trial's scene: the visible mask, with the pixels the whole
-/// mask adds (hidden by something in front) unknown, and the frame's depth.
 /// An error where the object's visible mask shows less than `min_visible` of its
 /// silhouette in the image (`mask/` where the scene has it, else `model` rendered at
 /// `pose`); an object not seen at all is left to the registration's own refusal.
@@ -591,13 +588,7 @@ fn check_visible_share(
                 camera: frame.camera,
                 pose,
             };
-            let g = registrar.renderer().rasterizer().render(
-                ctx,
-                model,
-                &[view],
-                vkdr::raster::Outputs::Ids,
-            )?;
-            g.ids.iter().filter(|&&id| id != 0).count()
+            count(&eval::render_mask(ctx, registrar, model, view)?)
         }
     };
     let share = visible as f64 / whole.max(visible) as f64;
@@ -612,6 +603,8 @@ fn check_visible_share(
     Ok(())
 }
 
+/// One object of a frame as a trial's scene: the visible mask, with the pixels the whole
+/// mask adds (hidden by something in front) unknown, and the frame's depth.
 fn frame_scene(frame: &Frame, object: &FrameObject, pose: Pose) -> Result<TrialScene> {
     let mut mask = object.visible.clone();
     if let Some(whole) = &object.whole {

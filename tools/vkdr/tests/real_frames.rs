@@ -116,9 +116,19 @@ fn a_mug_a_can_and_a_bottle_from_pose_noise() {
     );
 }
 
-/// A copy of image 1 of scene 000000 (the mug) as scene `name` whose depth is kept only on
-/// the mask: no support plane around it.
-fn without_table(root: &Path, bop: &Path) {
+/// A test folder `name` and in it, under `frames`, a copy of images 1 and 3 of the shared
+/// scene 000000 (the mug) whose image 1 keeps its depth only on the mask: no support plane
+/// around it. Returns the folder and the frames.
+fn without_table(name: &str) -> (PathBuf, PathBuf) {
+    let bop = real_set();
+    let dir = folder(name);
+    let root = dir.join("frames");
+    copy_without_table(&root, &bop);
+    (dir, root)
+}
+
+/// [`without_table`]'s copy of the shared set `bop` at `root`, with its map.
+fn copy_without_table(root: &Path, bop: &Path) {
     let scene = root.join("000000");
     for folder in ["depth", "mask_visib", "rgb"] {
         std::fs::create_dir_all(scene.join(folder)).unwrap();
@@ -179,10 +189,7 @@ fn without_table(root: &Path, bop: &Path) {
 
 #[test]
 fn a_frame_without_a_support_plane_is_a_row_not_an_exit() {
-    let bop = real_set();
-    let dir = folder("no_plane");
-    let frames = dir.join("frames");
-    without_table(&frames, &bop);
+    let (dir, frames) = without_table("no_plane");
     // The default fallback: registered without gravity, and the trials say so.
     let out = dir.join("fallback");
     // Both runs keep their shape spaces and the models' references in one folder.
@@ -248,7 +255,7 @@ fn a_frame_without_a_support_plane_is_a_row_not_an_exit() {
 /// middle column is on the image's left border, which cuts the mug in half; image 3 with
 /// an empty mask (the object wholly out of view).
 fn cut_by_the_border(root: &Path, bop: &Path) {
-    without_table(root, bop); // images 1 and 3, the map; their pixels are replaced below
+    copy_without_table(root, bop); // images 1 and 3, the map; their pixels are replaced below
     let (from, scene) = (bop.join("000000"), root.join("000000"));
     let mask = image::open(from.join("mask_visib/000001_000000.png"))
         .unwrap()
@@ -335,10 +342,7 @@ fn an_object_cut_by_the_border_and_one_out_of_view() {
 /// and a failed unit that says so, before any registration or reference.
 #[test]
 fn a_sliver_of_an_object_is_under_bop_s_visible_share() {
-    let bop = real_set();
-    let dir = folder("sliver");
-    let frames = dir.join("frames");
-    without_table(&frames, &bop);
+    let (dir, frames) = without_table("sliver");
     let path = frames.join("000000/mask_visib/000001_000000.png");
     let mut mask = image::open(&path).unwrap().to_luma8();
     let top = mask
