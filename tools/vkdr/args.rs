@@ -125,7 +125,7 @@ pub struct DepthLossArgs {
     /// many samples across the object (32: a third faster on a real mug at the same
     /// error), each weighted by the step squared, where a region of interest is rendered
     /// (RegisterParams::depth_detail); 0: at every pixel (noisy depth averages better).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0)]
     pub depth_detail: u32,
 }
 

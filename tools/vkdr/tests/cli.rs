@@ -354,6 +354,10 @@ fn bad_input_exits_non_zero_naming_the_problem_and_keeps_existing_files() {
             "depth detail 4 must be 0 (every pixel) or at least 8 samples",
         ),
         case(
+            &["eval-frames", "data", "--depth-detail", "-1", "--out", "OUT"],
+            "invalid value '-1' for '--depth-detail",
+        ),
+        case(
             &["eval", "--dataset", "empty_tests", "--out", "OUT"],
             "no meshes",
         ),
