@@ -39,29 +39,36 @@ uint pair_record(uint view, ivec2 p, ivec2 size, int s, out float alpha) {
     return encode_pair(pair, p);
 }
 
-vec4 antialiased_value(uint view, ivec2 p, ivec2 size, uint id) {
+vec4 antialiased_value(uint view, ivec2 p, ivec2 size, uint id, bool has_pair) {
     // Only interpolation needs the camera (colour_at); coverage is 0 or 1.
     ViewData vd;
     if (CHANNELS > 0u) vd = views[view];
-    vec4 c = colour_at(vd, view, p, id);
-    vec4 own = abs(blended(c));
-    largest_colour = max(largest_colour, own.x + own.y + own.z + own.w);
-    if (CHANNELS > 0u && id != 0u) {
-        vec2 shading = shading_magnitudes(vd, view, p, id);
+    vec4 c = vec4(0.0);
+    if (CHANNELS == 0u) {
+        c = colour_at(vd, view, p, id);
+    } else if (id != 0u) {
+        // colour_at, with the triangle and edge functions kept for the magnitudes.
+        Triangle tri = load_triangle(vd, id - 1u);
+        vec2 np = pixel_ndc(p, vd);
+        vec3 e = edge_functions(tri.clip[0], tri.clip[1], tri.clip[2], np);
+        c = shade_triangle(view, tri, e / (e.x + e.y + e.z));
+        vec2 shading = shading_magnitudes(vd, view, tri, np, e);
         largest_shading = max(largest_shading, shading.x);
         largest_barycentric = max(largest_barycentric, shading.y);
     }
+    vec4 own = abs(blended(c));
+    largest_colour = max(largest_colour, own.x + own.y + own.z + own.w);
     vec4 a = c;
-    for (int s = 0; s < 4; ++s) {
+    for (int s = 0; s < 4 && has_pair; ++s) {
         ivec2 q = p + STEPS[s];
         if (any(lessThan(q, ivec2(0))) || any(greaterThanEqual(q, size))) continue;
-        if (!pair_matters(id_at(p, view), id_at(q, view))) continue;
+        if (!pair_matters(id, id_at(q, view))) continue;
         Pair pair = pair_weight_at(view, p, s);
         if (!pair.valid) continue;
         ivec2 affected = pair.affects_g ? pair.g : pair.f;
         if (affected != p) continue;
         ivec2 other = pair.affects_g ? pair.f : pair.g;
-        a += pair.weight * blended(colour_at(vd, view, other, id_at(other, view)) - c);
+        a += pair.weight * (blended_colour_at(vd, view, other, id_at(other, view)) - blended(c));
     }
     return a;
 }
@@ -90,10 +97,11 @@ void main() {
             }
             continue;
         }
-        uint index = work[i];
+        uint entry = work[i];
+        uint index = entry & ~HAS_PAIR;
         uint view = view_of(index);
         ivec2 p = pixel_of(index);
-        vec4 a = antialiased_value(view, p, size, ids[index]);
+        vec4 a = antialiased_value(view, p, size, ids[index], (entry & HAS_PAIR) != 0u);
         // Against a mask the depth channel is 0 where the depth cannot count (as at the
         // pixels classify.comp does not list).
         if (COVERAGE != 0u && !depth_measured(index)) a[CHANNELS - 1u] = 0.0;

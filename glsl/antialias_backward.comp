@@ -56,9 +56,9 @@ void crossing_backward(ViewData vd, uint view, Pair pair) {
     if (pair.clamped) return;
     ivec2 affected = pair.affects_g ? pair.g : pair.f;
     vec4 ga = loss_gradient(pixel_index(affected, view), view);
-    vec4 cf = colour_at(vd, view, pair.f, id_at(pair.f, view));
-    vec4 cg = colour_at(vd, view, pair.g, id_at(pair.g, view));
-    float g_alpha = dot(ga, blended(cf - cg));
+    vec4 cf = blended_colour_at(vd, view, pair.f, id_at(pair.f, view));
+    vec4 cg = blended_colour_at(vd, view, pair.g, id_at(pair.g, view));
+    float g_alpha = dot(ga, cf - cg);
     if (g_alpha == 0.0) return;
     vec3 gi, gj;
     crossing_gradients(vd, pair, g_alpha, gi, gj);
@@ -67,30 +67,30 @@ void crossing_backward(ViewData vd, uint view, Pair pair) {
     add_clip_gradient(vd, view, pair.crossing.tri.v[(edge + 2) % 3], gj);
 }
 
-void handle_pixel(uint index) {
+void handle_pixel(uint entry) {
+    uint index = entry & ~HAS_PAIR;
+    bool any_pair = (entry & HAS_PAIR) != 0u;
     uint view = view_of(index);
     ivec2 size = ivec2(pc.width, pc.height);
     ivec2 p = pixel_of(index);
     const ivec2 steps[4] = STEPS;
     uint id = ids[index];
     bool interpolated = id != 0u && interpolated_inside(index);
-    bool any_pair = false;
-    for (int s = 0; s < 4; ++s) {
-        ivec2 q = clamp(p + steps[s], ivec2(0), size - 1);
-        any_pair = any_pair || pair_matters(id, id_at(q, view));
-    }
     ViewData vd = views[view];
     vec4 g_colour = interpolated ? loss_gradient(index, view) : vec4(0.0);
-    for (int s = 0; s < 4 && any_pair; ++s) {
+    // The pairs move colour between the pixels of the interpolated channels too; with
+    // coverage (a mask with depth) only channel 0, which is not interpolated (shade.glsl),
+    // so then only this pixel's forward pairs (their crossings) are visited.
+    bool colour_pairs = interpolated && COVERAGE == 0u;
+    for (int s = 0; s < (colour_pairs ? 4 : 2) && any_pair; ++s) {
         ivec2 q = p + steps[s];
         if (any(lessThan(q, ivec2(0))) || any(greaterThanEqual(q, size))) continue;
-        if (!pair_matters(id_at(p, view), id_at(q, view))) continue;
+        if (!pair_matters(id, id_at(q, view))) continue;
         bool forward = s < 2;
-        if (!forward && !interpolated) continue;
         Pair pair = pair_at(vd, view, p, s);
         if (!pair.valid) continue;
         if (forward) crossing_backward(vd, view, pair);
-        if (interpolated) {
+        if (colour_pairs) {
             // out[a] += w (c[o] - c[a]): d/dc[a] = -w, d/dc[o] = +w.
             ivec2 affected = pair.affects_g ? pair.g : pair.f;
             vec4 ga = loss_gradient(pixel_index(affected, view), view);
@@ -105,7 +105,7 @@ void handle_pixel(uint index) {
     vec3 b = e / sum;
     vec3 g_b = vec3(0.0);
     for (int k = 0; k < 3; ++k) {
-        for (uint ch = 0u; ch < CHANNELS; ++ch) {
+        for (uint ch = first_interpolated(); ch < CHANNELS; ++ch) {
             add_attribute_term(attribute_index(view, tri.v[k], ch), b[k] * g_colour[ch]);
             g_b[k] += g_colour[ch] * attributes[attribute_index(view, tri.v[k], ch)];
         }

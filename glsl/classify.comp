@@ -5,7 +5,8 @@
 // loss.glsl: with a mask and depth, only where depth is measured), its antialiased value
 // is its coverage; write it and add its loss terms less the background's (loss_excess) to
 // stats_fixed, one int64 fixed-point sum per subgroup (the same sums in any order). Every
-// other pixel is appended to the work list for antialias.comp and antialias_backward.comp,
+// other pixel is appended to the work list for antialias.comp and antialias_backward.comp
+// (flagged HAS_PAIR where a pair with a neighbour matters),
 // and each pair that matters of a pixel with its right and lower neighbours to the pair
 // lists (diff_pass.glsl pair_work_x, pair_work_y) for antialias.comp stage 0.
 // Stage 1, once per observation (x over workgroups, grid stride over every pixel of view
@@ -67,6 +68,7 @@ void main() {
     uint id = rows > 0 ? ids[first] : 0u;
     uint up = rows > 0 && top.y > 0 ? ids[first - pc.width] : id;
     uint listed = 0u;  // bit r: row r is listed
+    uint paired = 0u;  // bit r: a pair of row r's pixel with a neighbour matters
     uint pairs_x = 0u;  // bit r: row r's pair with its right neighbour matters
     uint pairs_y = 0u;  // ... with the pixel below
     vec3 terms = vec3(0.0);
@@ -81,6 +83,7 @@ void main() {
         pairs_x |= uint(pair_x) << uint(r);
         pairs_y |= uint(pair_y) << uint(r);
         bool any_pair = pair_x || pair_matters(id, left) || pair_y || pair_matters(id, up);
+        paired |= uint(any_pair) << uint(r);
         if (any_pair || (id != 0u && interpolated_inside(index))) {
             listed |= 1u << uint(r);
         } else if (id != 0u) {
@@ -100,7 +103,7 @@ void main() {
     while (listed != 0u) {
         int r = findLSB(listed);
         listed &= listed - 1u;
-        work[base++] = first + uint(r) * pc.width;
+        work[base++] = (first + uint(r) * pc.width) | ((paired >> uint(r)) & 1u) * HAS_PAIR;
     }
     base = list_slots(PAIRS_X_COUNT, pairs_x);
     while (pairs_x != 0u) {

@@ -24,7 +24,7 @@ layout(set = 0, binding = 6, std430) readonly buffer Observed { float observed[]
 layout(set = 0, binding = 7, std430) readonly buffer Distance { float distance_field[]; };  // [view][y][x]
 layout(set = 0, binding = 8, std430) buffer Antialiased { float antialiased[]; };        // [view][y][x][channel]
 layout(set = 0, binding = 9, std430) buffer Stats { float stats[]; };                   // [view][4]
-layout(set = 0, binding = 12, std430) buffer Work { uint work[]; };                     // pixel indices
+layout(set = 0, binding = 12, std430) buffer Work { uint work[]; };                     // pixel indices | HAS_PAIR
 layout(set = 0, binding = 13, std430) buffer WorkCount { uint work_count[]; };          // count, 3 dispatch args, then the slots below
 layout(set = 0, binding = 14, std430) buffer StatsFixed { int64_t stats_fixed[]; };    // [view][3], fixed point at pc.stats_shift
 layout(set = 0, binding = 15, std430) buffer GradCameraFixed { int64_t grad_camera_fixed[]; };  // [view][vertex][3]
@@ -44,6 +44,12 @@ layout(set = 0, binding = 20, std430) buffer Touched { uint touched[]; };
 layout(set = 0, binding = 21, std430) buffer AlphasX { float alphas_x[]; };
 layout(set = 0, binding = 22, std430) buffer AlphasY { float alphas_y[]; };
 const uint VERTEX_BLOCK = 8u;  // as in src/diff/mod.rs
+// A work list entry's flag: a pair of its pixel with one of its four neighbours matters
+// (pair_matters). Pixels without one (interpolated inside the silhouette) skip the pair
+// loops: on a CPU driver a loop runs while any lane of the SIMD batch needs it. A pixel
+// index is below 2^30 (the compared image, 4 bytes a pixel and channel, fits in one
+// buffer: check_scene_fits in src/diff/mod.rs).
+const uint HAS_PAIR = 0x80000000u;
 // The pixel pairs that matter, as the pixel indices of their left / upper pixels: along x
 // and along y, each appended by classify.comp (counts in work_count[PAIRS_X_COUNT] and
 // [PAIRS_Y_COUNT]). antialias.comp stage 0 walks these instead of both pairs of every
@@ -145,6 +151,14 @@ Pair pair_weight_at(uint view, ivec2 p, int s) {
 
 #include "loss.glsl"
 
+// blended(colour_at(...)): what antialiasing moves across a silhouette. Against a mask
+// with depth alone (coverage and the depth, which is not antialiased) that is the
+// coverage, and no triangle is loaded.
+vec4 blended_colour_at(ViewData vd, uint view, ivec2 pixel, uint id) {
+    if (COVERAGE != 0u && CHANNELS == 1u + DEPTH) return vec4(id != 0u ? 1.0 : 0.0, 0.0, 0.0, 0.0);
+    return blended(colour_at(vd, view, pixel, id));
+}
+
 // d camera / d clip applied to a clip-space gradient: x_clip = sx x + ox z,
 // y_clip = sy y + oy z, w = z.
 vec3 camera_gradient(ViewData vd, vec3 g_clip) {
@@ -215,19 +229,18 @@ vec2 gradient_bounds() {
     return vec2(camera, attributes_);
 }
 
-// Per unit |dL/dc|: bounds on the interpolation's camera terms at pixel p (showing
-// triangle id - 1) and on its barycentrics, as antialias_backward.comp handle_pixel forms
+// Per unit |dL/dc|: bounds on the interpolation's camera terms at a pixel and on its
+// barycentrics, as antialias_backward.comp handle_pixel forms
 // them: dL/db_k = sum over channels of dL/dc * attribute, dL/de_k = (dL/db_k -
 // dot(b, dL/db)) / sum(e), then through the edge functions to the clip-space corners.
-vec2 shading_magnitudes(ViewData vd, uint view, ivec2 p, uint id) {
-    Triangle tri = load_triangle(vd, id - 1u);
-    vec2 np = pixel_ndc(p, vd);
-    vec3 e = edge_functions(tri.clip[0], tri.clip[1], tri.clip[2], np);
+// The pixel's triangle `tri` and its edge functions `e` at the pixel's centre np, as the
+// forward found them.
+vec2 shading_magnitudes(ViewData vd, uint view, Triangle tri, vec2 np, vec3 e) {
     float sum = e.x + e.y + e.z;
     vec3 b = abs(e / sum);
     vec3 g_b = vec3(0.0);
     for (int k = 0; k < 3; ++k) {
-        for (uint ch = 0u; ch < CHANNELS; ++ch) g_b[k] += abs(attributes[attribute_index(view, tri.v[k], ch)]);
+        for (uint ch = first_interpolated(); ch < CHANNELS; ++ch) g_b[k] += abs(attributes[attribute_index(view, tri.v[k], ch)]);
     }
     vec3 g_e = (g_b + dot(b, g_b)) / abs(sum);
     vec3 g_clip[3] = vec3[3](vec3(0.0), vec3(0.0), vec3(0.0));

@@ -2,15 +2,22 @@
 // background) when CHANNELS == 0, else per-vertex attributes (CHANNELS of them,
 // at most 4; each view has its own, [view][vertex][channel]) interpolated with the exact
 // perspective-correct barycentrics. Background 0.
-// Needs diff.glsl, an `attributes[]` buffer, `CHANNELS` and `pc.vertex_count`.
+// Against a mask with depth (COVERAGE), channel 0 is the coverage: its attribute is 1 at
+// every vertex, so it is 1 wherever a triangle is, not interpolated, and it has no
+// interpolation gradient (its barycentric weights sum to 1).
+// Needs diff.glsl, an `attributes[]` buffer, `CHANNELS`, `COVERAGE` and `pc.vertex_count`.
 
 uint attribute_index(uint view, uint v, uint ch) {
     return (view * pc.vertex_count + v) * CHANNELS + ch;
 }
 
+// The first interpolated channel.
+uint first_interpolated() { return COVERAGE != 0u ? 1u : 0u; }
+
 vec4 shade_triangle(uint view, Triangle tri, vec3 b) {
     vec4 c = vec4(0.0);
-    for (uint ch = 0u; ch < CHANNELS; ++ch) {
+    if (COVERAGE != 0u) c[0] = 1.0;
+    for (uint ch = first_interpolated(); ch < CHANNELS; ++ch) {
         c[ch] = b.x * attributes[attribute_index(view, tri.v.x, ch)]
               + b.y * attributes[attribute_index(view, tri.v.y, ch)]
               + b.z * attributes[attribute_index(view, tri.v.z, ch)];

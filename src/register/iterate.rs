@@ -170,6 +170,24 @@ impl Registrar {
         Ok(times)
     }
 
+    /// The renderer's passes of one iteration of `job` (after one iteration at its start),
+    /// each submitted alone and timed on the host's clock `repeats` times
+    /// ([`crate::diff::Scene::profile`]): their names and milliseconds.
+    pub fn pass_profile(
+        &self,
+        ctx: &Context,
+        job: &Job,
+        params: &RegisterParams,
+        repeats: usize,
+    ) -> Result<Vec<(&'static str, Vec<f64>)>> {
+        let task = Task::new(ctx, job, params, None, None)?;
+        let mut rec = Recorder::new(ctx)?;
+        task.scene.record_prepare(&self.renderer, &mut rec)?;
+        self.record_iteration(&mut rec, &task, params, false, None)?;
+        ctx.submit_and_wait(rec)?;
+        task.scene.profile(ctx, &self.renderer, repeats)
+    }
+
     /// Records one iteration of one registration; with `timing`, the outer timestamps
     /// mark start, after deform, after the renderer's passes and end, the inner ones the
     /// renderer's own (see [`Scene::record`]).

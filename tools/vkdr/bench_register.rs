@@ -274,6 +274,11 @@ pub fn run(args: &Args) -> Result<()> {
     let starts_ratio = median(ratios);
     let from_starts = from_starts.expect("at least one repeat");
     let passes = registrar.profile(ctx, &jobs[0], &params, args.iterations)?;
+    let each_pass: Vec<(&str, f64)> = registrar
+        .pass_profile(ctx, &jobs[0], &params, args.iterations)?
+        .into_iter()
+        .map(|(name, times)| (name, median(times)))
+        .collect();
     let median_of = |f: fn(&PassTimes) -> f64| median(passes.iter().map(f).collect());
     let pass = PassTimes {
         deform: median_of(|p| p.deform),
@@ -326,7 +331,7 @@ pub fn run(args: &Args) -> Result<()> {
         .collect();
 
     let m = space.canonical.vertex_count();
-    let summary = format!(
+    let mut summary = format!(
         "# vkdr bench-register\n\nDevice: {device}.\n\
          One registration of a {category} ({m} vertices, {faces} triangles, {dims}-dimensional space) from a {w}x{h} mask{observed} with pose noise \
          (+-{tn} cm, +-{rn:.0} deg), the schedule of `vkdr eval`: {align} iterations aligning the pose alone, then {it} of pose and shape \
@@ -399,6 +404,14 @@ pub fn run(args: &Args) -> Result<()> {
             .collect::<Vec<_>>()
             .join(", "),
     );
+    summary += &format!(
+        "\nEach pass of an iteration's evaluation submitted alone (host clock, median of {}; \
+         each time includes one submission's overhead):\n\n| pass | ms |\n|---|---|\n",
+        args.iterations
+    );
+    for (name, ms) in &each_pass {
+        summary += &format!("| {name} | {ms:.3} |\n");
+    }
     print!("{summary}");
     write_atomically(&args.out.join("bench_register.md"), summary.as_bytes())?;
     let json = serde_json::json!({
@@ -421,6 +434,10 @@ pub fn run(args: &Args) -> Result<()> {
             "update": pass.update,
             "total": pass.total,
         },
+        "each_pass_ms": each_pass
+            .iter()
+            .map(|(name, ms)| serde_json::json!({ "pass": name, "ms": ms }))
+            .collect::<Vec<_>>(),
         "batch": args.batch,
         "sequential_ms": sequential,
         "batched_ms": batched,
