@@ -6,8 +6,9 @@
 //   - the silhouette crossings: each pair is handled by its left / upper pixel, and
 //     d alpha / d(edge function) chains to the edge's two clip-space vertices;
 //   - with attributes, the interpolation: dL/dc per pixel (own term plus the pair terms
-//     that moved colour into or out of it) to the attributes (grad_attributes) and, via
-//     the exact barycentrics, to the triangle's three clip-space vertices.
+//     that moved colour into or out of it) to the attributes (grad_attributes; the depth
+//     attribute's, the vertex's camera-space z, to that z) and, via the exact
+//     barycentrics, to the triangle's three clip-space vertices.
 // The pairs are the forward's records (pairs_x, pairs_y), so no pass here walks.
 // One pass: the scale of the fixed-point sums (include/fixed_point.glsl) comes from a
 // bound on every term that the forward left behind (diff_pass.glsl gradient_bounds); the
@@ -41,8 +42,11 @@ void add_attribute_term(uint at, float g) {
     atomicAdd(grad_attributes_fixed[at], to_fixed(g, attribute_shift));
 }
 
-void add_clip_gradient(ViewData vd, uint view, uint v, vec3 g_clip) {
+// Adds a clip-space gradient of vertex v, and g_z to its camera-space z (the depth
+// attribute's gradient: the attribute is that z).
+void add_clip_gradient(ViewData vd, uint view, uint v, vec3 g_clip, float g_z) {
     vec3 g = camera_gradient(vd, g_clip);
+    g.z += g_z;
     uint at = 3u * (view * pc.vertex_count + v);
     uint block = v / VERTEX_BLOCK;
     uint bit = 1u << (block % 32u);
@@ -63,8 +67,8 @@ void crossing_backward(ViewData vd, uint view, Pair pair) {
     vec3 gi, gj;
     crossing_gradients(vd, pair, g_alpha, gi, gj);
     int edge = pair.crossing.edge;
-    add_clip_gradient(vd, view, pair.crossing.tri.v[(edge + 1) % 3], gi);
-    add_clip_gradient(vd, view, pair.crossing.tri.v[(edge + 2) % 3], gj);
+    add_clip_gradient(vd, view, pair.crossing.tri.v[(edge + 1) % 3], gi, 0.0);
+    add_clip_gradient(vd, view, pair.crossing.tri.v[(edge + 2) % 3], gj, 0.0);
 }
 
 void handle_pixel(uint entry) {
@@ -104,9 +108,14 @@ void handle_pixel(uint entry) {
     float sum = e.x + e.y + e.z;
     vec3 b = e / sum;
     vec3 g_b = vec3(0.0);
+    vec3 g_z = vec3(0.0);  // the depth attribute's gradient, per corner
     for (int k = 0; k < 3; ++k) {
         for (uint ch = first_interpolated(); ch < CHANNELS; ++ch) {
-            add_attribute_term(attribute_index(view, tri.v[k], ch), b[k] * g_colour[ch]);
+            if (DEPTH != 0u && ch == CHANNELS - 1u) {
+                g_z[k] = b[k] * g_colour[ch];
+            } else {
+                add_attribute_term(attribute_index(view, tri.v[k], ch), b[k] * g_colour[ch]);
+            }
             g_b[k] += g_colour[ch] * attributes[attribute_index(view, tri.v[k], ch)];
         }
     }
@@ -116,7 +125,7 @@ void handle_pixel(uint entry) {
     edge_function_backward(tri.clip[1], tri.clip[2], np, g_e.x, g_clip[1], g_clip[2]);
     edge_function_backward(tri.clip[2], tri.clip[0], np, g_e.y, g_clip[2], g_clip[0]);
     edge_function_backward(tri.clip[0], tri.clip[1], np, g_e.z, g_clip[0], g_clip[1]);
-    for (int k = 0; k < 3; ++k) add_clip_gradient(vd, view, tri.v[k], g_clip[k]);
+    for (int k = 0; k < 3; ++k) add_clip_gradient(vd, view, tri.v[k], g_clip[k], g_z[k]);
 }
 
 void main() {

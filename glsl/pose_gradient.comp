@@ -8,8 +8,8 @@
 //            vertices into partials[view][group][subgroup][6] (no shared memory: a barrier
 //            makes CPU drivers run a workgroup as coroutines, several times slower);
 //   stage 1 (z over views): grad_pose[view] = the partials summed in slot order.
-// The camera gradients g are read as floats (grad_camera, after the shading and depth
-// passes added to them), or with pc.from_fixed straight from the backward's fixed-point
+// The camera gradients g are read as floats (grad_camera, after the shading passes added
+// to them), or with pc.from_fixed straight from the backward's fixed-point
 // sums, resolved here as fixed_resolve.comp would (one pass over the vertices less).
 // Blocks of pc.vertex_block vertices whose `touched` bit is 0 got no gradient term: they
 // are skipped (their grad_object stays as cleared, 0), so the pass costs what the

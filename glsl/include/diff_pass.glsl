@@ -209,7 +209,8 @@ float crossing_magnitude(ViewData vd, Pair pair) {
 //     its camera term per unit, at most X;
 //   a pixel's dL/dc is its own dL/dA plus +-w times each of its (at most four) pairs'
 //     (w <= 1/2), so |dL/dc| <= 3 G: its interpolation terms are at most 3 G S (camera) and
-//     3 G B (attributes).
+//     3 G B (attributes; with depth the depth attribute's goes to the camera-space z, so
+//     a camera term is at most 3 G (S + B)).
 // Twice that, for float rounding. The bound is loose by the spread of dL/dA over the
 // pixels (the largest term may sit where dL/dA is small); the sums' resolution stays far
 // below float32's (include/fixed_point.glsl).
@@ -224,7 +225,8 @@ vec2 gradient_bounds() {
     float crossing = uintBitsToFloat(work_count[CROSSING_MAX]);
     float shading = uintBitsToFloat(work_count[SHADING_MAX]);
     float barycentric = uintBitsToFloat(work_count[BARYCENTRIC_MAX]);
-    float camera = 2.0 * g * max(2.0 * colour * crossing, 3.0 * shading);
+    float interpolation = shading + (DEPTH != 0u ? barycentric : 0.0);
+    float camera = 2.0 * g * max(2.0 * colour * crossing, 3.0 * interpolation);
     float attributes_ = 2.0 * 3.0 * g * barycentric;
     return vec2(camera, attributes_);
 }

@@ -137,7 +137,6 @@ const _: () = assert!(shaders::LAMBERT_COMP.takes::<LambertConstants>());
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct DepthConstants {
     vertex_count: u32,
-    stage: u32,
     channels: u32,
     coverage: u32,
 }

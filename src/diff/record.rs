@@ -61,7 +61,7 @@ impl Scene {
         rec.fill_buffer_range(&self.boxes, 16, 8 * n as u64, lo);
         rec.fill_buffer_range(&self.boxes, 16 + 8 * n as u64, 8 * n as u64, hi);
         // The float camera and attribute gradients need no clearing: the resolve below
-        // writes every element before the shading and depth passes add to them.
+        // writes every element before the shading passes add to them.
         for buffer in [
             &self.antialiased,
             &self.stats,
@@ -72,12 +72,13 @@ impl Scene {
             rec.fill_buffer(buffer, 0);
         }
         // The pose pass visits only the vertex blocks the backward touched, or (when the
-        // shading and depth passes add to every covered vertex) all of them.
-        let shaded = self.lambert.is_some() || self.depth.is_some();
+        // shading passes add to every covered vertex) all of them. (The depth's gradient
+        // the backward adds itself, to the vertices it touches.)
+        let shaded = self.lambert.is_some();
         rec.fill_buffer(&self.touched, if shaded { u32::MAX } else { 0 });
         marks.pass(rec, "clear")?;
         self.record_lambert(renderer, rec, 0);
-        self.record_depth(renderer, rec, 0);
+        self.record_depth(renderer, rec);
         marks.pass(rec, "shading")?;
         renderer
             .rasterizer
@@ -178,8 +179,10 @@ impl Scene {
                 Groups::Count(self.grid(count), 1, 1),
             );
         };
-        // The camera gradients go to floats here only when the shading or depth passes add
-        // to them; otherwise the pose pass reads the fixed-point sums itself.
+        // The camera gradients go to floats here only when the shading passes add to them;
+        // otherwise the pose pass reads the fixed-point sums itself. (With depth the
+        // attribute gradients of the coverage and depth channels resolve to 0: the backward
+        // adds the depth's to the camera-space z.)
         if shaded {
             resolve(
                 &self.grad_camera_fixed,
@@ -200,7 +203,6 @@ impl Scene {
         marks.pass(rec, "resolve")?;
         self.record_lambert(renderer, rec, 1);
         self.record_lambert(renderer, rec, 2);
-        self.record_depth(renderer, rec, 1);
         marks.pass(rec, "shading backward")?;
 
         let pose_bindings = [
@@ -270,8 +272,9 @@ impl Scene {
         rec.memory_barrier();
     }
 
-    /// With depth, one stage of `glsl/depth.comp` (and a barrier after it).
-    pub(super) fn record_depth(&self, renderer: &DiffRenderer, rec: &mut Recorder, stage: u32) {
+    /// With depth, `glsl/depth.comp`: the vertices' camera-space depth as their last
+    /// attribute (and a barrier after it).
+    pub(super) fn record_depth(&self, renderer: &DiffRenderer, rec: &mut Recorder) {
         if self.depth.is_none() {
             return;
         }
@@ -282,12 +285,9 @@ impl Scene {
                 Binding::buffer(self.mesh.positions()),
                 Binding::buffer(self.views.views()),
                 Binding::buffer(&self.attributes),
-                Binding::buffer(&self.grad_attributes),
-                Binding::buffer(&self.grad_camera),
             ],
             &DepthConstants {
                 vertex_count: vertices,
-                stage,
                 channels: self.channels,
                 coverage: self.coverage as u32,
             },
