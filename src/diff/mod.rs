@@ -419,7 +419,9 @@ pub struct Evaluation {
     /// left, `x_camera = exp([d]x) R x + t`.
     pub pose_gradient: Vec<[f32; 6]>,
     /// dL/d(attribute), `[vertex][channel]`, summed over views (empty without attributes;
-    /// with shading, dL/d(shade)).
+    /// with shading, dL/d(shade)). With depth, 0 for the depth channel (its gradient is in
+    /// the vertex gradient: the attribute is the vertex's camera-space z) and for a mask's
+    /// coverage channel (1 at every vertex, not interpolated).
     pub attribute_gradient: Vec<f32>,
     /// The antialiased compared image, `[view][row][column][channel]` (with depth, the last
     /// channel is the rendered depth at each covered pixel centre, not antialiased;
