@@ -47,11 +47,10 @@ vec4 antialiased_value(uint view, ivec2 p, ivec2 size, uint id, bool has_pair) {
     if (CHANNELS == 0u) {
         c = colour_at(vd, view, p, id);
     } else if (id != 0u) {
-        // colour_at, with the triangle and edge functions kept for the magnitudes.
-        Triangle tri = load_triangle(vd, id - 1u);
-        vec2 np = pixel_ndc(p, vd);
-        vec3 e = edge_functions(tri.clip[0], tri.clip[1], tri.clip[2], np);
-        c = shade_triangle(view, tri, e / (e.x + e.y + e.z));
+        Triangle tri;
+        vec2 np;
+        vec3 e;
+        c = shaded_colour_at(vd, view, p, id, tri, np, e);
         vec2 shading = shading_magnitudes(vd, view, tri, np, e);
         largest_shading = max(largest_shading, shading.x);
         largest_barycentric = max(largest_barycentric, shading.y);

@@ -25,11 +25,23 @@ vec4 shade_triangle(uint view, Triangle tri, vec3 b) {
     return c;
 }
 
+// The colour of triangle id - 1 (id != 0, CHANNELS > 0) at `pixel`, with the triangle, the
+// pixel's NDC and its edge functions kept for whoever needs them too.
+vec4 shaded_colour_at(ViewData vd, uint view, ivec2 pixel, uint id, out Triangle tri, out vec2 np,
+                      out vec3 e) {
+    tri = load_triangle(vd, id - 1u);
+    np = pixel_ndc(pixel, vd);
+    e = edge_functions(tri.clip[0], tri.clip[1], tri.clip[2], np);
+    return shade_triangle(view, tri, e / (e.x + e.y + e.z));
+}
+
 vec4 colour_at(ViewData vd, uint view, ivec2 pixel, uint id) {
     if (id == 0u) return vec4(0.0);
     if (CHANNELS == 0u) return vec4(1.0, 0.0, 0.0, 0.0);
-    Triangle tri = load_triangle(vd, id - 1u);
-    return shade_triangle(view, tri, barycentrics(tri.clip[0], tri.clip[1], tri.clip[2], pixel_ndc(pixel, vd)));
+    Triangle tri;
+    vec2 np;
+    vec3 e;
+    return shaded_colour_at(vd, view, pixel, id, tri, np, e);
 }
 
 uint image_channels() { return max(CHANNELS, 1u); }

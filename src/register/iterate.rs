@@ -147,10 +147,7 @@ impl Registrar {
         params: &RegisterParams,
         repeats: usize,
     ) -> Result<Vec<PassTimes>> {
-        let task = Task::new(ctx, job, params, None, None)?;
-        let mut rec = Recorder::new(ctx)?;
-        task.scene.record_prepare(&self.renderer, &mut rec)?;
-        ctx.submit_and_wait(rec)?;
+        let task = self.prepared(ctx, job, params, false)?;
         let outer = Timestamps::new(ctx, 4)?;
         let inner = Timestamps::new(ctx, 3)?;
         let mut times = Vec::new();
@@ -180,12 +177,27 @@ impl Registrar {
         params: &RegisterParams,
         repeats: usize,
     ) -> Result<Vec<(&'static str, Vec<f64>)>> {
+        let task = self.prepared(ctx, job, params, true)?;
+        task.scene.profile(ctx, &self.renderer, repeats)
+    }
+
+    /// `job`'s task with its scene prepared on the device, and with `iterate` one
+    /// iteration run from its start: where the profiles begin.
+    fn prepared<'a>(
+        &self,
+        ctx: &Context,
+        job: &Job<'a>,
+        params: &RegisterParams,
+        iterate: bool,
+    ) -> Result<Task<'a>> {
         let task = Task::new(ctx, job, params, None, None)?;
         let mut rec = Recorder::new(ctx)?;
         task.scene.record_prepare(&self.renderer, &mut rec)?;
-        self.record_iteration(&mut rec, &task, params, false, None)?;
+        if iterate {
+            self.record_iteration(&mut rec, &task, params, false, None)?;
+        }
         ctx.submit_and_wait(rec)?;
-        task.scene.profile(ctx, &self.renderer, repeats)
+        Ok(task)
     }
 
     /// Records one iteration of one registration; with `timing`, the outer timestamps
