@@ -23,6 +23,7 @@ use crate::raster::View;
 use crate::shaders;
 use crate::Pose;
 
+mod depth_settle;
 mod evidence;
 pub use evidence::{HELD_BELOW, HOLD};
 mod gravity;
@@ -37,6 +38,7 @@ mod region;
 mod starts;
 mod task;
 
+pub use depth_settle::SETTLE_TOLERANCE;
 pub use gravity::{Gravity, GRAVITY_WEIGHT, TILT_TOLERANCE};
 pub use iterate::PassTimes;
 pub use job::{all_views, Job, OtherView};
@@ -44,8 +46,8 @@ pub use observation::{Observation, Plan, PoseMode, ViewImages};
 use params::SCALE_UNIT;
 pub use params::{
     observation_prior, RegisterParams, CODE_BOUND, DETAIL, MASK_FIRST, MAX_ITERATIONS, REACH,
-    REACH_ITERATIONS, SCALE_RANGE, STAGE_ALIGN, STAGE_FIT, STAGE_HELD, STAGE_MASK_FIRST,
-    STAGE_REACH, STAGE_TURNED,
+    REACH_ITERATIONS, SCALE_RANGE, STAGES, STAGE_ALIGN, STAGE_FIT, STAGE_HELD, STAGE_MASK_FIRST,
+    STAGE_REACH, STAGE_SETTLED, STAGE_TURNED,
 };
 use prepare::{onto_mask, unknown_in_front, Marked};
 use starts::{at_poses, jobs_from, relative_turns};
@@ -83,8 +85,8 @@ pub struct Registration {
     /// reach's wide depth cost, the joint fit's loss).
     pub losses: Vec<f64>,
     /// The stages that `losses`, `codes` and `scales` hold, in order: each one's name
-    /// ([`STAGE_FIT`], [`STAGE_ALIGN`], [`STAGE_REACH`], [`STAGE_TURNED`], [`STAGE_HELD`],
-    /// [`STAGE_MASK_FIRST`]) and how many
+    /// ([`STAGE_FIT`], [`STAGE_ALIGN`], [`STAGE_REACH`], [`STAGE_TURNED`],
+    /// [`STAGE_SETTLED`], [`STAGE_HELD`], [`STAGE_MASK_FIRST`]) and how many
     /// entries it holds. Their counts add up to `losses.len()`
     /// ([`Registration::iterations`]); `evaluations` counts every evaluation besides (the
     /// turns' checks, a joint fit that a turned one beat).
@@ -95,8 +97,9 @@ pub struct Registration {
     /// [`RegisterParams::optimize_scale`]).
     pub scales: Vec<f64>,
     /// Every evaluation of an objective the registration made: its stages' iterations
-    /// (fewer than asked where the loss reached its plateau), and with several starts
-    /// the turns' checks and any joint fit that a turned one replaced. The time,
+    /// (fewer than asked where the loss reached its plateau), with several starts the
+    /// turns' checks, and any joint fit that a turned one or one moved to the depth
+    /// ([`STAGE_SETTLED`]) replaced. The time,
     /// `milliseconds`, is theirs.
     pub evaluations: usize,
     /// Wall time from the start of the call until this registration finished,
@@ -462,6 +465,7 @@ impl Registrar {
             let fitted = refined.remove(0);
             refined = vec![self.check_turns(ctx, &jobs[0], params, fitted, &turns, started)?];
         }
+        let refined = self.settle_on_depth(ctx, &jobs, refined, params, started)?;
         let jobs = at_poses(
             &jobs,
             &refined.iter().map(|s| s.result.clone()).collect::<Vec<_>>(),

@@ -108,6 +108,19 @@ pub const STAGE_HELD: &str = "fit with the unseen held";
 /// The joint fit again from a turned start that scored better (the registration from
 /// starts), in place of the first joint fit.
 pub const STAGE_TURNED: &str = "fit from a turn";
+/// The joint fit again from its pose moved along the line of sight to the measured depth,
+/// where it had settled off it, in place of the joint fit (`depth_settle`).
+pub const STAGE_SETTLED: &str = "fit moved to the depth";
+/// Every stage's name ([`super::Registration::stages`] holds some of them).
+pub const STAGES: [&str; 7] = [
+    STAGE_MASK_FIRST,
+    STAGE_ALIGN,
+    STAGE_REACH,
+    STAGE_FIT,
+    STAGE_TURNED,
+    STAGE_SETTLED,
+    STAGE_HELD,
+];
 
 /// The detail of the registration schedules ([`RegisterParams::detail`]): an object over
 /// 128 pixels across is rendered at a step of 2 or more. On a real 640 x 480 frame (a mug

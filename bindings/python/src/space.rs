@@ -336,11 +336,10 @@ impl ShapeSpace {
 
 /// The engine's stage names for pickled (name, count) pairs.
 fn stages(pairs: Vec<(String, usize)>) -> PyResult<Vec<(&'static str, usize)>> {
-    use vkdr::register::{STAGE_ALIGN, STAGE_FIT, STAGE_REACH, STAGE_TURNED};
     pairs
         .into_iter()
         .map(|(name, count)| {
-            [STAGE_FIT, STAGE_ALIGN, STAGE_REACH, STAGE_TURNED]
+            vkdr::register::STAGES
                 .into_iter()
                 .find(|s| *s == name)
                 .map(|s| (s, count))
@@ -403,8 +402,9 @@ impl Registration {
     }
 
     /// The stages `losses` holds, in order: (name, count), the counts adding up to
-    /// `len(losses)` ("pose alignment", "depth reach", "fit", "fit from a turn"); each
-    /// stage's losses are its own objective's.
+    /// `len(losses)` ("mask first", "pose alignment", "depth reach", "fit", "fit from a
+    /// turn", "fit moved to the depth", "fit with the unseen held"); each stage's losses
+    /// are its own objective's.
     #[getter]
     fn stages(&self) -> Vec<(&'static str, usize)> {
         self.result.stages.clone()

@@ -269,10 +269,14 @@ def test_spaces_and_registrations_pickle(device, space, tmp_path):
     (tmp_path / "lumps.npz.json").unlink()
     alone = vkdr.ShapeSpace.load(tmp_path / "lumps.npz")
     assert np.array_equal(alone.vertices(code), space.vertices(code))
-    mask, _ = observe(device, space, 2, POSE)
+    mask, depth = observe(device, space, 2, POSE)
     result = device.register(space, mask, K, SIZE, POSE)
     copy = pickle.loads(pickle.dumps(result))
     for name in ("code", "code_sd", "pose", "vertices", "faces", "losses"):
         assert np.array_equal(getattr(copy, name), getattr(result, name)), name
     assert copy.stages == result.stages == [("fit", len(result.losses))]
     assert (copy.loss, copy.iterations, copy.evaluations, copy.scale) == (result.loss, result.iterations, result.evaluations, result.scale)
+    # Every stage's name comes back: with depth the known pose compares the mask first.
+    with_depth = device.register(space, mask, K, SIZE, POSE, depth=depth)
+    assert with_depth.stages[0][0] == "mask first", with_depth.stages
+    assert pickle.loads(pickle.dumps(with_depth)).stages == with_depth.stages
