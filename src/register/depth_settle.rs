@@ -23,8 +23,8 @@ use crate::raster::View;
 use crate::{Camera, Pose};
 
 use super::params::SCALE_BOUND;
-use super::task::{Stage, Staged};
-use super::{Job, RegisterParams, Registrar, Registration, SCALE_UNIT, STAGE_SETTLED};
+use super::task::{lower_loss, Stage, Staged};
+use super::{Job, RegisterParams, Registrar, SCALE_UNIT, STAGE_SETTLED};
 
 /// The median depth residual, in depth scales ([`crate::diff::DepthLoss::scale`]), past
 /// which a fit is run again from the pose it implies.
@@ -179,22 +179,18 @@ impl Registrar {
             },
             &mut |_, _| {},
         )?;
-        let mut fitted = fitted;
+        let mut refits: Vec<Option<Staged>> = fitted.iter().map(|_| None).collect();
         for ((i, _, _), again) in moved.into_iter().zip(again) {
-            let evaluations = fitted[i].result.evaluations + again.result.evaluations;
-            if again.result.loss < fitted[i].result.loss {
-                fitted[i] = Staged {
-                    result: Registration {
-                        stages: vec![(STAGE_SETTLED, again.result.losses.len())],
-                        ..again.result
-                    },
-                    ..again
-                };
-            }
-            fitted[i].result.evaluations = evaluations;
-            fitted[i].result.milliseconds = started.elapsed().as_secs_f64() * 1e3;
+            refits[i] = Some(again);
         }
-        Ok(fitted)
+        Ok(fitted
+            .into_iter()
+            .zip(refits)
+            .map(|(staged, again)| match again {
+                Some(again) => lower_loss(staged, again, STAGE_SETTLED, started),
+                None => staged,
+            })
+            .collect())
     }
 }
 

@@ -10,7 +10,7 @@ use crate::gpu::Context;
 use crate::raster::View;
 use crate::Pose;
 
-use super::task::{Stage, Staged};
+use super::task::{lower_loss, Stage, Staged};
 use super::{nearest, Job, RegisterParams, Registrar, Registration, STAGE_TURNED};
 
 /// The turn between the starts of a registration with the pose free (`vkdr register`
@@ -272,21 +272,7 @@ impl Registrar {
                 &mut |_, _| {},
             )?
             .remove(0);
-        let evaluations = fitted.result.evaluations + again.result.evaluations;
-        let mut kept = if again.result.loss < fitted.result.loss {
-            Staged {
-                result: Registration {
-                    stages: vec![(STAGE_TURNED, again.result.losses.len())],
-                    ..again.result
-                },
-                ..again
-            }
-        } else {
-            fitted
-        };
-        kept.result.evaluations = evaluations;
-        kept.result.milliseconds = started.elapsed().as_secs_f64() * 1e3;
-        Ok(kept)
+        Ok(lower_loss(fitted, again, STAGE_TURNED, started))
     }
 }
 

@@ -1,5 +1,7 @@
 //! A registration's device buffers, its progress, and what one stage returns.
 
+use std::time::Instant;
+
 use glam::{DMat3, DVec3};
 
 use crate::cpd::linalg::Matrix;
@@ -326,6 +328,32 @@ pub(super) struct Staged {
     /// BFGS: its inverse Hessian estimate at the end over the coordinates that moved (the
     /// device's code coordinates first, then the pose's where it moved).
     pub(super) inverse_hessian: Option<Matrix>,
+}
+
+/// `again` (a fit run again from elsewhere, its stage then named `stage`) in place of
+/// `fitted` where its final loss is lower, else `fitted`; either way counting both fits'
+/// evaluations, and the time since `started`.
+pub(super) fn lower_loss(
+    fitted: Staged,
+    again: Staged,
+    stage: &'static str,
+    started: Instant,
+) -> Staged {
+    let evaluations = fitted.result.evaluations + again.result.evaluations;
+    let mut kept = if again.result.loss < fitted.result.loss {
+        Staged {
+            result: Registration {
+                stages: vec![(stage, again.result.losses.len())],
+                ..again.result
+            },
+            ..again
+        }
+    } else {
+        fitted
+    };
+    kept.result.evaluations = evaluations;
+    kept.result.milliseconds = started.elapsed().as_secs_f64() * 1e3;
+    kept
 }
 
 /// The first view's pose as the device holds it.
