@@ -23,6 +23,7 @@ use crate::raster::View;
 use crate::{Camera, Pose};
 
 use super::params::SCALE_BOUND;
+use super::region::mask_box;
 use super::task::{lower_loss, Stage, Staged};
 use super::{Job, RegisterParams, Registrar, SCALE_UNIT, STAGE_SETTLED};
 
@@ -53,15 +54,7 @@ pub(super) fn depth_offset(job: &Job, vertices: &[DVec3], pose: &Pose) -> Option
     let camera = job.view.camera;
     let width = camera.width as usize;
     let object = |i: usize| job.observed[i] > 0.0;
-    let inside = (0..width * camera.height as usize).filter(|&i| object(i));
-    let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
-    for i in inside {
-        let (x, y) = (i % width, i / width);
-        (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x), y1.max(y));
-    }
-    if x0 > x1 {
-        return None;
-    }
+    let (x0, y0, x1, y1) = mask_box(&job.observed[..width * camera.height as usize], width)?;
     let (across, down) = (x1 - x0 + 1, y1 - y0 + 1);
     let step = (across.max(down) / SAMPLES_ACROSS).max(1);
     let coarse = step as f64;
@@ -169,14 +162,7 @@ impl Registrar {
         let again = self.run(
             ctx,
             &moved_jobs,
-            Stage {
-                params,
-                pose_only: false,
-                codes: Some(&codes),
-                started,
-                first: 0,
-                priors: None,
-            },
+            Stage::fit(params, Some(&codes), started),
             &mut |_, _| {},
         )?;
         let mut refits: Vec<Option<Staged>> = fitted.iter().map(|_| None).collect();

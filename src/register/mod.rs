@@ -343,31 +343,15 @@ impl Registrar {
             let first: Option<(Vec<Registration>, Vec<Vec<f32>>)> = match &masks_first {
                 None => None,
                 Some(first) => Some(
-                    self.run(
-                        ctx,
-                        jobs,
-                        Stage {
-                            params: first,
-                            pose_only: false,
-                            codes: None,
-                            started,
-                            first: 0,
-                            priors: None,
-                        },
-                        &mut on_chunk,
-                    )?
-                    .into_iter()
-                    .map(|s| (s.result, s.coordinates))
-                    .unzip(),
+                    self.run(ctx, jobs, Stage::fit(first, None, started), &mut on_chunk)?
+                        .into_iter()
+                        .map(|s| (s.result, s.coordinates))
+                        .unzip(),
                 ),
             };
             let fit = Stage {
-                params,
-                pose_only: false,
-                codes: first.as_ref().map(|(_, codes)| &codes[..]),
-                started,
                 first: masks_first.map_or(0, |first| first.iterations),
-                priors: None,
+                ..Stage::fit(params, first.as_ref().map(|(_, codes)| &codes[..]), started)
             };
             let runs = self.run(ctx, jobs, fit, &mut on_chunk)?;
             let fitted = self.hold_unseen(ctx, jobs, runs, fit, &mut on_chunk)?;
@@ -397,14 +381,7 @@ impl Registrar {
             .run(
                 ctx,
                 jobs,
-                Stage {
-                    params: &align,
-                    pose_only: true,
-                    codes: None,
-                    started,
-                    first: 0,
-                    priors: None,
-                },
+                Stage::fit(&align, None, started).pose_only(),
                 &mut on_chunk,
             )?
             .into_iter()
@@ -428,12 +405,9 @@ impl Registrar {
                 ctx,
                 &jobs,
                 Stage {
-                    params: &reach,
                     pose_only,
-                    codes: None,
-                    started,
                     first: done,
-                    priors: None,
+                    ..Stage::fit(&reach, None, started)
                 },
                 &mut on_chunk,
             )?;
@@ -453,12 +427,8 @@ impl Registrar {
             }
         }
         let fit = Stage {
-            params,
-            pose_only: false,
-            codes: codes.as_deref(),
-            started,
             first: done,
-            priors: None,
+            ..Stage::fit(params, codes.as_deref(), started)
         };
         let mut refined = self.run(ctx, &jobs, fit, &mut on_chunk)?;
         if turns.len() > 1 {
@@ -534,12 +504,9 @@ impl Registrar {
             ctx,
             &held_jobs,
             Stage {
-                params,
-                pose_only: false,
-                codes: Some(&codes),
-                started,
                 first,
                 priors: Some(&matrices),
+                ..Stage::fit(params, Some(&codes), started)
             },
             on_chunk,
         )?;

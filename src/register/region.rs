@@ -78,6 +78,17 @@ impl Bounds {
     }
 }
 
+/// The bounding box of a mask's object pixels (those > 0) in an image `width` pixels
+/// wide: the first and last column and row, inclusive; None where no pixel is object.
+pub(super) fn mask_box(mask: &[f32], width: usize) -> Option<(usize, usize, usize, usize)> {
+    let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
+    for (i, _) in mask.iter().enumerate().filter(|(_, &m)| m > 0.0) {
+        let (x, y) = (i % width, i / width);
+        (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x), y1.max(y));
+    }
+    (x0 <= x1).then_some((x0, y0, x1, y1))
+}
+
 /// The span `lo..hi` of an axis of `limit` pixels widened to whole steps (on the high
 /// side, or the low one at the image's edge): its start and length; None where empty or
 /// where the image is too short.
@@ -134,11 +145,9 @@ impl Region {
         let mut object: f64 = 0.0;
         for job in jobs {
             let mut mask = Bounds::empty();
-            for (i, &m) in job.observed[..w * h].iter().enumerate() {
-                if m > 0.0 {
-                    mask.add(((i % w) as f64, (i / w) as f64));
-                    mask.add(((i % w) as f64 + 1.0, (i / w) as f64 + 1.0));
-                }
+            if let Some((x0, y0, x1, y1)) = mask_box(&job.observed[..w * h], w) {
+                mask.add((x0 as f64, y0 as f64));
+                mask.add((x1 as f64 + 1.0, y1 as f64 + 1.0));
             }
             let mean = job.space.vertices(&vec![0.0; job.space.dims()])?;
             let start = match silhouette_bounds(&mean, &job.view) {

@@ -234,14 +234,7 @@ impl Registrar {
         let scored = self.run(
             ctx,
             &turned,
-            Stage {
-                params: &score,
-                pose_only: true,
-                codes: Some(&codes),
-                started,
-                first: 0,
-                priors: None,
-            },
+            Stage::fit(&score, Some(&codes), started).pose_only(),
             &mut |_, _| {},
         )?;
         let loss = |s: &Staged| s.result.losses.first().copied().unwrap_or(f64::INFINITY);
@@ -261,14 +254,7 @@ impl Registrar {
             .run(
                 ctx,
                 &turned[best..best + 1],
-                Stage {
-                    params,
-                    pose_only: false,
-                    codes: Some(&codes[..1]),
-                    started,
-                    first: 0,
-                    priors: None,
-                },
+                Stage::fit(params, Some(&codes[..1]), started),
                 &mut |_, _| {},
             )?
             .remove(0);

@@ -320,6 +320,33 @@ pub(super) struct Stage<'a> {
     pub(super) priors: Option<&'a [Matrix]>,
 }
 
+impl<'a> Stage<'a> {
+    /// A stage that fits the code and the pose from `codes` (None: the mean), counting its
+    /// iterations from 0, under the weak prior.
+    pub(super) fn fit(
+        params: &'a RegisterParams,
+        codes: Option<&'a [Vec<f32>]>,
+        started: Instant,
+    ) -> Self {
+        Self {
+            params,
+            pose_only: false,
+            codes,
+            started,
+            first: 0,
+            priors: None,
+        }
+    }
+
+    /// The same stage with the code held where it starts: the pose alone moves.
+    pub(super) fn pose_only(self) -> Self {
+        Self {
+            pose_only: true,
+            ..self
+        }
+    }
+}
+
 /// What one stage of a registration (`Registrar::run`) returns.
 pub(super) struct Staged {
     pub(super) result: Registration,
