@@ -135,6 +135,8 @@ pub fn symmetry_pivot(vertices: &[DVec3], axis: DVec3) -> DVec3 {
     }
     let nearest = nearest::Nearest::new(&points);
     let mut pivot = across(crate::mesh::centroid(&points));
+    // Each estimate is a function of the pivot alone (through the nearest points it
+    // pairs): once an estimate returns the pivot unchanged, every later one would too.
     for _ in 0..20 {
         let estimates = [1.0, -1.0].map(|side: f64| {
             let turn = DMat3::from_axis_angle(axis, side * 2.0 * half_turn);
@@ -158,7 +160,11 @@ pub fn symmetry_pivot(vertices: &[DVec3], axis: DVec3) -> DVec3 {
             let inverse = DMat3::from_axis_angle(axis, side * (90f64.to_radians() - half_turn));
             inverse * target / (2.0 * half_turn.sin())
         });
-        pivot = 0.5 * (estimates[0] + estimates[1]);
+        let next = 0.5 * (estimates[0] + estimates[1]);
+        if next == pivot {
+            break;
+        }
+        pivot = next;
     }
     pivot
 }
