@@ -1,0 +1,84 @@
+#!/usr/bin/env python3
+"""A copy of BOP scenes at 1/F of their resolution: objects as a camera F times farther
+away would see them (in pixels), for `vkdr eval-frames` on frames it was not tuned to.
+
+    pip install numpy pillow
+    python3 tools/bop_resample.py ../shared/real/ycbv-dev/bop 4 /tmp/real4
+    vkdr eval-frames /tmp/real4 --out /tmp/real4-eval
+
+Every F-th pixel of each image is kept (depth, masks and RGB alike: no pixel is blended,
+so a depth value stays a measured one and a mask stays a mask). BOP's `cam_K` has its
+pixel centres on integers (OpenCV's convention), so pixel (i, j) of the copy is pixel
+(F i, F j) of the original and `fx, fy, cx, cy` are divided by F exactly. The map's
+category and model paths are written absolute, so the copy can live anywhere.
+"""
+
+import argparse
+import json
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+IMAGE_FOLDERS = ("depth", "mask", "mask_visib", "rgb")
+
+
+def resample_scene(source: Path, target: Path, factor: int) -> int:
+    """Copies one scene folder at 1/factor of its resolution; the images written."""
+    target.mkdir(parents=True)
+    cameras = json.loads((source / "scene_camera.json").read_text())
+    for image, camera in cameras.items():
+        k = camera.get("cam_K")
+        if not isinstance(k, list) or len(k) != 9:
+            raise ValueError(f"{source / 'scene_camera.json'}: image {image} has no 3x3 cam_K")
+        for index in (0, 2, 4, 5):
+            k[index] /= factor
+    (target / "scene_camera.json").write_text(json.dumps(cameras, indent=1))
+    for name in ("scene_gt.json", "scene_gt_info.json"):
+        if (source / name).exists():
+            shutil.copy(source / name, target / name)
+    written = 0
+    for folder in IMAGE_FOLDERS:
+        if not (source / folder).is_dir():
+            continue
+        (target / folder).mkdir()
+        for path in sorted((source / folder).iterdir()):
+            pixels = np.array(Image.open(path))
+            kept = np.ascontiguousarray(pixels[::factor, ::factor])
+            Image.fromarray(kept).save(target / folder / path.name)
+            written += 1
+    return written
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("source", type=Path, help="a BOP folder: scene folders and map.json")
+    parser.add_argument("factor", type=int, help="keep every FACTOR-th pixel (2 or more)")
+    parser.add_argument("out", type=Path, help="the copy's folder (must not exist)")
+    args = parser.parse_args()
+    if args.factor < 2:
+        parser.error(f"factor must be 2 or more, not {args.factor}")
+    if args.out.exists():
+        parser.error(f"{args.out} exists: give a new folder")
+    source = args.source.resolve()
+    scenes = sorted(p for p in source.iterdir() if (p / "scene_camera.json").exists())
+    if not scenes:
+        parser.error(f"{source} holds no BOP scene folder (none has scene_camera.json)")
+    args.out.mkdir(parents=True)
+    written = sum(resample_scene(s, args.out / s.name, args.factor) for s in scenes)
+    mapping = source / "map.json"
+    if mapping.exists():
+        objects = json.loads(mapping.read_text())
+        for entry in objects.values():
+            for key in ("category", "model"):
+                if key in entry:
+                    entry[key] = str((source / entry[key]).resolve())
+        (args.out / "map.json").write_text(json.dumps(objects, indent=1))
+    print(f"wrote {len(scenes)} scenes ({written} images) at 1/{args.factor} into {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
