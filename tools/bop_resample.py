@@ -7,16 +7,21 @@ away would see them (in pixels), for `vkdr eval-frames` on frames it was not tun
     vkdr eval-frames /tmp/real4 --out /tmp/real4-eval
 
 Every F-th pixel of each image is kept (depth, masks and RGB alike: no pixel is blended,
-so a depth value stays a measured one and a mask stays a mask). BOP's `cam_K` has its
+so a depth value stays a measured one and a mask stays a mask; RGB stored as JPEG is
+encoded again, lossily: vkdr reads RGB for pictures only). BOP's `cam_K` has its
 pixel centres on integers (OpenCV's convention), so pixel (i, j) of the copy is pixel
 (F i, F j) of the original and `fx, fy, cx, cy` are divided by F exactly. The map's
 category and model paths are written absolute, so the copy can live anywhere.
+`scene_gt_info.json` (boxes and pixel counts at the original resolution) is not copied.
+The copy is written into a temporary folder beside OUT and renamed to OUT when whole: a
+failure leaves no OUT behind.
 """
 
 import argparse
 import json
 import shutil
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -36,25 +41,34 @@ def resample_scene(source: Path, target: Path, factor: int) -> int:
         for index in (0, 2, 4, 5):
             k[index] /= factor
     (target / "scene_camera.json").write_text(json.dumps(cameras, indent=1))
-    for name in ("scene_gt.json", "scene_gt_info.json"):
-        if (source / name).exists():
-            shutil.copy(source / name, target / name)
+    shutil.copy(source / "scene_gt.json", target / "scene_gt.json")
     written = 0
     for folder in IMAGE_FOLDERS:
         if not (source / folder).is_dir():
             continue
         (target / folder).mkdir()
         for path in sorted((source / folder).iterdir()):
-            pixels = np.array(Image.open(path))
+            try:
+                pixels = np.array(Image.open(path))
+            except OSError as error:
+                raise ValueError(f"{path}: not an image ({error})") from error
             kept = np.ascontiguousarray(pixels[::factor, ::factor])
             Image.fromarray(kept).save(target / folder / path.name)
             written += 1
     return written
 
 
+def scene_folders(source: Path) -> list[Path]:
+    """The BOP scenes at `source` as `vkdr eval-frames` finds them: the folder itself where
+    it holds scene_gt.json, else its subfolders that do."""
+    if (source / "scene_gt.json").is_file():
+        return [source]
+    return sorted(p for p in source.iterdir() if (p / "scene_gt.json").is_file())
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("source", type=Path, help="a BOP folder: scene folders and map.json")
+    parser.add_argument("source", type=Path, help="a BOP folder (scene folders and map.json) or one scene")
     parser.add_argument("factor", type=int, help="keep every FACTOR-th pixel (2 or more)")
     parser.add_argument("out", type=Path, help="the copy's folder (must not exist)")
     args = parser.parse_args()
@@ -63,20 +77,36 @@ def main() -> int:
     if args.out.exists():
         parser.error(f"{args.out} exists: give a new folder")
     source = args.source.resolve()
-    scenes = sorted(p for p in source.iterdir() if (p / "scene_camera.json").exists())
+    if not source.is_dir():
+        parser.error(f"{source} is not a folder")
+    scenes = scene_folders(source)
     if not scenes:
-        parser.error(f"{source} holds no BOP scene folder (none has scene_camera.json)")
-    args.out.mkdir(parents=True)
-    written = sum(resample_scene(s, args.out / s.name, args.factor) for s in scenes)
-    mapping = source / "map.json"
-    if mapping.exists():
-        objects = json.loads(mapping.read_text())
-        for entry in objects.values():
-            for key in ("category", "model"):
-                if key in entry:
-                    entry[key] = str((source / entry[key]).resolve())
-        (args.out / "map.json").write_text(json.dumps(objects, indent=1))
-    print(f"wrote {len(scenes)} scenes ({written} images) at 1/{args.factor} into {args.out}")
+        parser.error(f"{source} holds no BOP scene (a folder with scene_gt.json)")
+    out = args.out.resolve()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{out.name}-", dir=out.parent))
+    try:
+        if scenes == [source]:
+            written = resample_scene(source, staging / "scene", args.factor)
+            root = staging / "scene"
+        else:
+            root = staging
+            written = sum(resample_scene(s, staging / s.name, args.factor) for s in scenes)
+        mapping = source / "map.json"
+        if mapping.exists():
+            objects = json.loads(mapping.read_text())
+            for entry in objects.values():
+                for key in ("category", "model"):
+                    if key in entry:
+                        entry[key] = str((source / entry[key]).resolve())
+            (root / "map.json").write_text(json.dumps(objects, indent=1))
+        root.rename(out)
+    except (OSError, ValueError, KeyError, json.JSONDecodeError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    print(f"wrote {len(scenes)} scenes ({written} images) at 1/{args.factor} into {out}")
     return 0
 
 
