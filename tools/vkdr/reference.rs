@@ -303,7 +303,7 @@ impl Reference {
 
 /// The version of the files [`Reference::cached`] keeps, part of their key: bump it when
 /// what a reference holds or how it is computed changes.
-const CACHE_FORMAT: u32 = 1;
+const CACHE_FORMAT: u32 = 2;
 
 /// A [`Reference`] as [`Reference::cached`] keeps it (JSON; numbers read back exactly).
 #[derive(serde::Serialize, serde::Deserialize)]
