@@ -54,6 +54,23 @@ pub fn add_s_auc(errors: &[f64]) -> f64 {
         / errors.len() as f64
 }
 
+/// Each point's distance to its nearest other point (infinite for a lone point).
+fn spacings(points: &[DVec3]) -> Vec<f64> {
+    points
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            points
+                .iter()
+                .enumerate()
+                .filter(|&(j, _)| j != i)
+                .map(|(_, q)| (*p - *q).length_squared())
+                .fold(f64::INFINITY, f64::min)
+                .sqrt()
+        })
+        .collect()
+}
+
 /// [`asymmetric_points`]: the median turned point's distance over the sample's median
 /// spacing above which the whole outline breaks the symmetry. Measured on 2 000-point
 /// samples turned about their centroid: bodies of revolution (cans, generated bottles and
@@ -89,19 +106,7 @@ pub fn asymmetric_points(points: &[DVec3], up: DVec3, tolerance: f64) -> Vec<DVe
     let mut sorted = distances.clone();
     sorted.sort_by(f64::total_cmp);
     let median = sorted[sorted.len() / 2];
-    let mut spacings: Vec<f64> = points
-        .iter()
-        .enumerate()
-        .map(|(i, p)| {
-            points
-                .iter()
-                .enumerate()
-                .filter(|&(j, _)| j != i)
-                .map(|(_, q)| (*p - *q).length_squared())
-                .fold(f64::INFINITY, f64::min)
-                .sqrt()
-        })
-        .collect();
+    let mut spacings = spacings(points);
     spacings.sort_by(f64::total_cmp);
     if median > WHOLE_OUTLINE * spacings[spacings.len() / 2] {
         return points.to_vec();
@@ -266,20 +271,7 @@ pub fn symmetric_about(points: &[DVec3], up: DVec3) -> bool {
         return false;
     }
     let centre = vkdr::mesh::centroid(&points);
-    let spacing = points
-        .iter()
-        .enumerate()
-        .map(|(i, p)| {
-            points
-                .iter()
-                .enumerate()
-                .filter(|&(j, _)| j != i)
-                .map(|(_, q)| (*p - *q).length_squared())
-                .fold(f64::MAX, f64::min)
-                .sqrt()
-        })
-        .sum::<f64>()
-        / points.len() as f64;
+    let spacing = spacings(&points).iter().sum::<f64>() / points.len() as f64;
     [30f64, 90.0, 150.0].iter().all(|degrees| {
         let turn = glam::DQuat::from_axis_angle(up.normalize(), degrees.to_radians());
         let mut distances: Vec<f64> = points
