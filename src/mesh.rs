@@ -19,6 +19,39 @@ pub fn centroid(points: &[DVec3]) -> DVec3 {
     points.iter().sum::<DVec3>() / points.len().max(1) as f64
 }
 
+/// `n` points on the surface of `triangles` over `points`, uniform by area, drawn with a
+/// generator seeded `seed` (deterministic); none for a surface without area. Triangles
+/// whose area is not finite are never drawn.
+pub fn surface_sample(points: &[DVec3], triangles: &[[u32; 3]], n: usize, seed: u64) -> Vec<DVec3> {
+    let corners = |t: &[u32; 3]| t.map(|i| points[i as usize]);
+    let mut cumulative = Vec::with_capacity(triangles.len());
+    let mut total = 0.0;
+    for t in triangles {
+        let [a, b, c] = corners(t);
+        let area = 0.5 * (b - a).cross(c - a).length();
+        total += if area.is_finite() { area } else { 0.0 };
+        cumulative.push(total);
+    }
+    if total <= 0.0 {
+        return Vec::new();
+    }
+    let mut rng = crate::rng::Rng::new(seed);
+    (0..n)
+        .map(|_| {
+            let r = rng.range(0.0, total);
+            let k = cumulative
+                .partition_point(|&c| c < r)
+                .min(triangles.len() - 1);
+            let [a, b, c] = corners(&triangles[k]);
+            let (mut u, mut v) = (rng.uniform(), rng.uniform());
+            if u + v > 1.0 {
+                (u, v) = (1.0 - u, 1.0 - v);
+            }
+            a + u * (b - a) + v * (c - a)
+        })
+        .collect()
+}
+
 /// A welded triangle mesh: shared vertices, one index per corner, counter-clockwise
 /// outward faces.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -404,6 +437,31 @@ mod tests {
             let message = Mesh::parse_obj(text).unwrap_err().to_string();
             assert!(message.contains(expected), "{text:?}: {message}");
         }
+    }
+
+    #[test]
+    fn surface_samples_follow_area_and_skip_what_has_none() {
+        let points = [
+            DVec3::ZERO,
+            DVec3::X,
+            DVec3::Y,
+            DVec3::new(5.0, 0.0, 0.0),
+            DVec3::new(8.0, 0.0, 0.0),
+            DVec3::new(5.0, 2.0, 0.0),
+            DVec3::new(f64::NAN, 0.0, 0.0),
+        ];
+        // Areas 0.5, 3, 0 (collinear) and not finite.
+        let triangles = [[0, 1, 2], [3, 4, 5], [0, 1, 3], [6, 1, 2]];
+        let sample = surface_sample(&points, &triangles, 4000, 7);
+        assert_eq!(sample, surface_sample(&points, &triangles, 4000, 7));
+        let in_second = sample.iter().filter(|p| p.x >= 5.0).count() as f64 / 4000.0;
+        assert!((in_second - 3.0 / 3.5).abs() < 0.02, "{in_second}");
+        for p in &sample {
+            let first = p.x >= 0.0 && p.y >= 0.0 && p.x + p.y <= 1.0 + 1e-12;
+            let second = p.x >= 5.0 && p.y >= 0.0 && (p.x - 5.0) / 3.0 + p.y / 2.0 <= 1.0 + 1e-12;
+            assert!(p.z == 0.0 && (first || second), "{p}");
+        }
+        assert!(surface_sample(&points, &triangles[2..3], 10, 7).is_empty());
     }
 
     #[test]

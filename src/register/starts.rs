@@ -180,43 +180,6 @@ const SURFACE_SAMPLES: usize = 2000;
 /// 2.6-3.9.
 const SAME_TURNED: f64 = 1.7;
 
-/// `count` points on the surface of `triangles` over `vertices`, uniform by area, drawn
-/// with a generator seeded `seed` (deterministic); none for a surface without area.
-fn surface_sample(
-    vertices: &[DVec3],
-    triangles: &[[u32; 3]],
-    count: usize,
-    seed: u64,
-) -> Vec<DVec3> {
-    let corners = |t: &[u32; 3]| t.map(|i| vertices[i as usize]);
-    let mut cumulative = Vec::with_capacity(triangles.len());
-    let mut total = 0.0;
-    for t in triangles {
-        let [a, b, c] = corners(t);
-        let area = 0.5 * (b - a).cross(c - a).length();
-        total += if area.is_finite() { area } else { 0.0 };
-        cumulative.push(total);
-    }
-    if total <= 0.0 {
-        return Vec::new();
-    }
-    let mut rng = crate::rng::Rng::new(seed);
-    (0..count)
-        .map(|_| {
-            let at = rng.uniform() * total;
-            let i = cumulative
-                .partition_point(|&c| c <= at)
-                .min(triangles.len() - 1);
-            let [a, b, c] = corners(&triangles[i]);
-            let (mut u, mut v) = (rng.uniform(), rng.uniform());
-            if u + v > 1.0 {
-                (u, v) = (1.0 - u, 1.0 - v);
-            }
-            a + (b - a) * u + (c - a) * v
-        })
-        .collect()
-}
-
 /// Whether turning the surface of `triangles` over `vertices` about the axis along `axis`
 /// through `pivot` can tell one turn from another: whether, turned by 30, 90 or 150
 /// degrees, part of it leaves the unturned surface (a mug's handle, a spray bottle's
@@ -230,8 +193,8 @@ pub(super) fn turns_can_tell(
     axis: DVec3,
     pivot: DVec3,
 ) -> bool {
-    let sample = surface_sample(vertices, triangles, SURFACE_SAMPLES, 1);
-    let other = surface_sample(vertices, triangles, SURFACE_SAMPLES, 2);
+    let sample = crate::mesh::surface_sample(vertices, triangles, SURFACE_SAMPLES, 1);
+    let other = crate::mesh::surface_sample(vertices, triangles, SURFACE_SAMPLES, 2);
     if sample.is_empty() || sample.iter().chain(&other).any(|p| !p.is_finite()) {
         return true;
     }

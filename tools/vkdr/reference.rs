@@ -7,7 +7,6 @@ use std::path::Path;
 
 use glam::DVec3;
 
-use crate::dataset::Rng;
 use crate::metrics::{surface_error, surface_extent, symmetric_about};
 use crate::surface::Surface;
 use vkdr::cpd::linalg::{self, Matrix};
@@ -183,31 +182,10 @@ fn optimum((mut x, error): (Vec<f64>, f64), k: usize, free_scale: bool) -> Optim
     }
 }
 
-/// `n` points drawn uniformly (by area) on the surface of `mesh`, seeded.
+/// `n` points drawn uniformly (by area) on the surface of `mesh`, seeded
+/// ([`vkdr::mesh::surface_sample`]).
 pub fn surface_sample(mesh: &Mesh, n: usize, seed: u64) -> Vec<DVec3> {
-    let p = mesh.points();
-    let mut cumulative = Vec::with_capacity(mesh.triangle_count());
-    let mut total = 0.0;
-    for t in mesh.triangles() {
-        let [a, b, c] = t.map(|i| p[i as usize]);
-        total += 0.5 * (b - a).cross(c - a).length();
-        cumulative.push(total);
-    }
-    let mut rng = Rng::new(seed);
-    (0..n)
-        .map(|_| {
-            let r = rng.range(0.0, total);
-            let k = cumulative
-                .partition_point(|&c| c < r)
-                .min(cumulative.len() - 1);
-            let [a, b, c] = mesh.triangles()[k].map(|i| p[i as usize]);
-            let (mut u, mut v) = (rng.uniform(), rng.uniform());
-            if u + v > 1.0 {
-                (u, v) = (1.0 - u, 1.0 - v);
-            }
-            a + u * (b - a) + v * (c - a)
-        })
-        .collect()
+    vkdr::mesh::surface_sample(&mesh.points(), mesh.triangles(), n, seed)
 }
 
 /// Points of the test surface the error is measured on.
