@@ -262,22 +262,20 @@ impl Region {
         for i in 0..ch {
             for j in 0..cw {
                 let (y, x) = (self.y as usize + i * s, self.x as usize + j * s);
-                let pixels = (y..y + s).flat_map(|r| (x..x + s).map(move |c| r * width + c));
-                let known: Vec<usize> =
-                    pixels.clone().filter(|&p| job.observed[p] >= 0.0).collect();
-                let mean = |image: &[f32], of: &[usize]| {
-                    of.iter().map(|&p| image[p] as f64).sum::<f64>() / of.len().max(1) as f64
-                };
-                observed.push(if 2 * known.len() < s * s {
+                let block = Block::of(
+                    job,
+                    (y..y + s).flat_map(|r| (x..x + s).map(move |c| r * width + c)),
+                );
+                observed.push(if 2 * block.known < s * s {
                     UNKNOWN
                 } else {
-                    mean(job.observed, &known) as f32
+                    block.observed as f32
                 });
-                if let (Some(out), Some(image)) = (shaded.as_mut(), job.shaded) {
-                    out.push(mean(image, &known) as f32);
+                if let Some(out) = shaded.as_mut() {
+                    out.push(block.shaded as f32);
                 }
-                if let (Some(out), Some(image)) = (depth.as_mut(), job.depth) {
-                    out.push(mean_depth(image, job.observed, pixels));
+                if let Some(out) = depth.as_mut() {
+                    out.push(block.depth as f32);
                 }
             }
         }
@@ -346,22 +344,45 @@ impl Region {
     }
 }
 
-/// The depth of a block of image pixels `pixels` (indices into `depth` and `observed`):
-/// the mean measurement of the object's pixels (of all measured ones where none shows the
-/// object; 0 where none is measured).
-fn mean_depth(depth: &[f32], observed: &[f32], pixels: impl Iterator<Item = usize>) -> f32 {
-    let measured: Vec<usize> = pixels.filter(|&p| depth[p] > 0.0).collect();
-    let on_object: Vec<usize> = measured
-        .iter()
-        .copied()
-        .filter(|&p| observed[p] > 0.0)
-        .collect();
-    let of = if on_object.is_empty() {
-        &measured
-    } else {
-        &on_object
-    };
-    (of.iter().map(|&p| depth[p] as f64).sum::<f64>() / of.len().max(1) as f64) as f32
+/// The means over a block of image pixels (indices into a job's images): the observed
+/// mask's and the shading's over its known pixels, the depth's over the object's measured
+/// pixels (over all measured ones where none shows the object); each 0 where it has none.
+struct Block {
+    /// Known pixels (the mask not [`UNKNOWN`]).
+    known: usize,
+    observed: f64,
+    shaded: f64,
+    depth: f64,
+}
+
+impl Block {
+    fn of(job: &Job, pixels: impl Iterator<Item = usize>) -> Self {
+        let (mut known, mut observed, mut shaded) = (0, 0.0, 0.0);
+        // Measured pixels, and those of them that show the object: count and sum.
+        let (mut measured, mut on_object) = ((0, 0.0), (0, 0.0));
+        for p in pixels {
+            let mask = job.observed[p];
+            if mask >= 0.0 {
+                known += 1;
+                observed += mask as f64;
+                shaded += job.shaded.map_or(0.0, |s| s[p] as f64);
+            }
+            let Some(d) = job.depth.map(|d| d[p]).filter(|&d| d > 0.0) else {
+                continue;
+            };
+            measured = (measured.0 + 1, measured.1 + d as f64);
+            if mask > 0.0 {
+                on_object = (on_object.0 + 1, on_object.1 + d as f64);
+            }
+        }
+        let mean = |(n, sum): (usize, f64)| sum / n.max(1) as f64;
+        Self {
+            known,
+            observed: mean((known, observed)),
+            shaded: mean((known, shaded)),
+            depth: mean(if on_object.0 > 0 { on_object } else { measured }),
+        }
+    }
 }
 
 /// A job's images cut to a region, and the region's camera.
