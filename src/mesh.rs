@@ -20,8 +20,8 @@ pub fn centroid(points: &[DVec3]) -> DVec3 {
 }
 
 /// `n` points on the surface of `triangles` over `points`, uniform by area, drawn with a
-/// generator seeded `seed` (deterministic); none for a surface without area. Triangles
-/// whose area is not finite are never drawn.
+/// generator seeded `seed` (deterministic); none for a surface without area. A triangle
+/// without area (zero, or not finite) is never drawn.
 pub fn surface_sample(points: &[DVec3], triangles: &[[u32; 3]], n: usize, seed: u64) -> Vec<DVec3> {
     let corners = |t: &[u32; 3]| t.map(|i| points[i as usize]);
     let mut cumulative = Vec::with_capacity(triangles.len());
@@ -40,7 +40,7 @@ pub fn surface_sample(points: &[DVec3], triangles: &[[u32; 3]], n: usize, seed: 
         .map(|_| {
             let r = rng.range(0.0, total);
             let k = cumulative
-                .partition_point(|&c| c < r)
+                .partition_point(|&c| c <= r)
                 .min(triangles.len() - 1);
             let [a, b, c] = corners(&triangles[k]);
             let (mut u, mut v) = (rng.uniform(), rng.uniform());
