@@ -10,8 +10,9 @@ not tuned to.
 For each annotated object of each image, a box covers SHARE of its visible mask's
 bounding box from one side (`--side`, left or right), and 20 pixels past that side and
 10 above and below, NEARER millimetres (60) in front of the median measured depth of the
-object's visible pixels: in the copy the depth inside the box is the box's (a flat face
-the sensor measured) and every object's visible mask loses the box's pixels. The RGB
+object's visible pixels: in the copy, where the scene lies behind the box (or was not
+measured), the depth is the box's (a flat face the sensor measured) and every object's
+visible mask loses those pixels; what stands in front of the box stays. The RGB
 images are copied as they are (vkdr reads them for pictures only) and so are `mask/`'s
 whole silhouettes, which the box does not change. The map's category and model paths are
 written absolute, so the copy can live anywhere. `scene_gt_info.json` (the originals'
@@ -58,7 +59,7 @@ def box_of(mask: np.ndarray, depth: np.ndarray, share: float, side: str):
 
 
 def occlude_scene(source: Path, target: Path, share: float, side: str, nearer: float) -> int:
-    """Copies one scene with the boxes in front; the images written."""
+    """Copies one scene with the boxes in front; the depth and mask images written."""
     target.mkdir(parents=True)
     cameras = json.loads((source / "scene_camera.json").read_text())
     annotations = json.loads((source / "scene_gt.json").read_text())
@@ -75,7 +76,11 @@ def occlude_scene(source: Path, target: Path, share: float, side: str, nearer: f
         depth = read_image(depth_path)
         if depth.dtype != np.uint16:
             raise ValueError(f"{depth_path}: a depth image of {depth.dtype}, not 16-bit")
-        scale = cameras.get(image, {}).get("depth_scale", 1.0)
+        scale = cameras.get(image, {}).get("depth_scale")
+        if not isinstance(scale, (int, float)) or not scale > 0:
+            raise ValueError(
+                f"{source / 'scene_camera.json'}: image {image} has no positive depth_scale"
+            )
         masks = [
             source / "mask_visib" / f"{int(image):06d}_{k:06d}.png" for k in range(len(objects))
         ]
@@ -91,8 +96,14 @@ def occlude_scene(source: Path, target: Path, share: float, side: str, nearer: f
             front = np.median(depth[visible & (depth > 0)]) * scale - nearer
             if front <= 0:
                 raise ValueError(f"{path}: the object is nearer than {nearer} mm")
-            boxed[box] = int(round(front / scale))
-            hidden[box] = True
+            # The box hides what lies behind it, not what stands in front (another object,
+            # or a nearer box): there the scene is as it was.
+            at = int(round(front / scale))
+            behind = np.zeros(depth.shape, bool)
+            behind[box] = True
+            behind &= (boxed == 0) | (boxed > at)
+            boxed[behind] = at
+            hidden |= behind
         Image.fromarray(boxed.astype(np.uint16)).save(target / "depth" / depth_path.name)
         written += 1
         for path in masks:
@@ -145,7 +156,7 @@ def main() -> int:
                         entry[key] = str((source / entry[key]).resolve())
             (root / "map.json").write_text(json.dumps(objects, indent=1))
         root.rename(out)
-    except (OSError, ValueError, KeyError, json.JSONDecodeError) as error:
+    except (OSError, ValueError, KeyError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 1
     finally:
