@@ -25,13 +25,12 @@ import functools
 import json
 import shutil
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 from PIL import Image
 
-from bop_resample import scene_folders
+from bop_resample import write_copy
 
 COPIED_FOLDERS = ("mask", "rgb")
 
@@ -126,44 +125,11 @@ def main() -> int:
         parser.error(f"share must be between 0 and 1, not {args.share}")
     if not args.nearer > 0.0:
         parser.error(f"--nearer must be positive, not {args.nearer}")
-    if args.out.exists():
-        parser.error(f"{args.out} exists: give a new folder")
-    source = args.source.resolve()
-    if not source.is_dir():
-        parser.error(f"{source} is not a folder")
-    scenes = scene_folders(source)
-    if not scenes:
-        parser.error(f"{source} holds no BOP scene (a folder with scene_gt.json)")
-    out = args.out.resolve()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{out.name}-", dir=out.parent))
     occlude = functools.partial(
         occlude_scene, share=args.share, side=args.side, nearer=args.nearer
     )
-    try:
-        if scenes == [source]:
-            written = occlude(source, staging / "scene")
-            root = staging / "scene"
-        else:
-            root = staging
-            written = sum(occlude(s, staging / s.name) for s in scenes)
-        mapping = source / "map.json"
-        if mapping.exists():
-            objects = json.loads(mapping.read_text())
-            for entry in objects.values():
-                for key in ("category", "model"):
-                    if key in entry:
-                        entry[key] = str((source / entry[key]).resolve())
-            (root / "map.json").write_text(json.dumps(objects, indent=1))
-        root.rename(out)
-    except (OSError, ValueError, KeyError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 1
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
-    print(f"wrote {len(scenes)} scenes ({written} images) with {args.share:g} of each object "
-          f"hidden from the {args.side} into {out}")
-    return 0
+    what = f"with {args.share:g} of each object hidden from the {args.side}"
+    return write_copy(parser, args.source, args.out, occlude, what)
 
 
 if __name__ == "__main__":

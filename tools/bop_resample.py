@@ -18,11 +18,13 @@ failure leaves no OUT behind.
 """
 
 import argparse
+import functools
 import json
 import shutil
 import sys
 import tempfile
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 from PIL import Image
@@ -66,32 +68,36 @@ def scene_folders(source: Path) -> list[Path]:
     return sorted(p for p in source.iterdir() if (p / "scene_gt.json").is_file())
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("source", type=Path, help="a BOP folder (scene folders and map.json) or one scene")
-    parser.add_argument("factor", type=int, help="keep every FACTOR-th pixel (2 or more)")
-    parser.add_argument("out", type=Path, help="the copy's folder (must not exist)")
-    args = parser.parse_args()
-    if args.factor < 2:
-        parser.error(f"factor must be 2 or more, not {args.factor}")
-    if args.out.exists():
-        parser.error(f"{args.out} exists: give a new folder")
-    source = args.source.resolve()
+def write_copy(
+    parser: argparse.ArgumentParser,
+    source: Path,
+    out: Path,
+    copy_scene: Callable[[Path, Path], int],
+    what: str,
+) -> int:
+    """Copies the BOP scenes at `source` (a BOP folder or one scene, as the command line
+    gave it; a bad one is `parser`'s error) into `out`, each through `copy_scene(scene,
+    target)` (the images it wrote), with the map's category and model paths written
+    absolute; into a temporary folder beside `out`, renamed to `out` when whole. Says what
+    it wrote (`what` ends the line) and returns the exit code."""
+    if out.exists():
+        parser.error(f"{out} exists: give a new folder")
+    source = source.resolve()
     if not source.is_dir():
         parser.error(f"{source} is not a folder")
     scenes = scene_folders(source)
     if not scenes:
         parser.error(f"{source} holds no BOP scene (a folder with scene_gt.json)")
-    out = args.out.resolve()
+    out = out.resolve()
     out.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{out.name}-", dir=out.parent))
     try:
         if scenes == [source]:
-            written = resample_scene(source, staging / "scene", args.factor)
+            written = copy_scene(source, staging / "scene")
             root = staging / "scene"
         else:
             root = staging
-            written = sum(resample_scene(s, staging / s.name, args.factor) for s in scenes)
+            written = sum(copy_scene(s, staging / s.name) for s in scenes)
         mapping = source / "map.json"
         if mapping.exists():
             objects = json.loads(mapping.read_text())
@@ -101,13 +107,25 @@ def main() -> int:
                         entry[key] = str((source / entry[key]).resolve())
             (root / "map.json").write_text(json.dumps(objects, indent=1))
         root.rename(out)
-    except (OSError, ValueError, KeyError, json.JSONDecodeError) as error:
+    except (OSError, ValueError, KeyError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 1
     finally:
         shutil.rmtree(staging, ignore_errors=True)
-    print(f"wrote {len(scenes)} scenes ({written} images) at 1/{args.factor} into {out}")
+    print(f"wrote {len(scenes)} scenes ({written} images) {what} into {out}")
     return 0
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("source", type=Path, help="a BOP folder (scene folders and map.json) or one scene")
+    parser.add_argument("factor", type=int, help="keep every FACTOR-th pixel (2 or more)")
+    parser.add_argument("out", type=Path, help="the copy's folder (must not exist)")
+    args = parser.parse_args()
+    if args.factor < 2:
+        parser.error(f"factor must be 2 or more, not {args.factor}")
+    resample = functools.partial(resample_scene, factor=args.factor)
+    return write_copy(parser, args.source, args.out, resample, f"at 1/{args.factor}")
 
 
 if __name__ == "__main__":
