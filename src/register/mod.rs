@@ -98,8 +98,8 @@ pub struct Registration {
     pub scales: Vec<f64>,
     /// Every evaluation of an objective the registration made: its stages' iterations
     /// (fewer than asked where the loss reached its plateau), with several starts the
-    /// turns' checks (none for a fitted body of revolution), and any joint fit that a turned one or one moved to the depth
-    /// ([`STAGE_SETTLED`]) replaced. The time,
+    /// turns' checks (none for a fitted body of revolution), and any joint fit that a
+    /// turned one or one moved to the depth ([`STAGE_SETTLED`]) replaced. The time,
     /// `milliseconds`, is theirs.
     pub evaluations: usize,
     /// Wall time from the start of the call until this registration finished,
@@ -238,8 +238,9 @@ impl Registrar {
     /// loss is kept (`Registrar::check_turns`, private): k starts cost one registration, k
     /// evaluations and a second joint fit where a turn wins (`vkdr bench-register` times
     /// it); none of those where the fitted shape is a body of revolution about the up
-    /// axis, or where every start is the first (its turns all the identity). Needs the pose free with an alignment stage (`params.pose_every` and
-    /// `params.align` > 0): the turns are tried on the aligned fit. An error otherwise,
+    /// axis, or where every start is the first (its turns all the identity). Needs the
+    /// pose free with an alignment stage (`params.pose_every` and `params.align` > 0): the
+    /// turns are tried on the aligned fit. An error otherwise,
     /// and unless 1 to [`MAX_STARTS`] starts are given.
     pub fn register_with_turns(
         &self,

@@ -404,27 +404,12 @@ mod tests {
         assert!(side(&starts[1]) * side(&starts[2]) < 0.0);
     }
 
-    /// A lathe's surface about the vertical axis through `at`: `rings` rings of
-    /// `segments` vertices at the given (height, radius), joined by quads.
-    fn lathe(at: DVec3, rings: &[(f64, f64)], segments: u32) -> (Vec<DVec3>, Vec<[u32; 3]>) {
-        let vertices = rings
-            .iter()
-            .flat_map(|&(y, r)| {
-                (0..segments).map(move |k| {
-                    let a = k as f64 * std::f64::consts::TAU / segments as f64;
-                    at + DVec3::new(r * a.cos(), y, r * a.sin())
-                })
-            })
-            .collect();
-        let mut triangles = Vec::new();
-        for ring in 0..rings.len() as u32 - 1 {
-            for k in 0..segments {
-                let (a, b) = (ring * segments + k, ring * segments + (k + 1) % segments);
-                let (c, d) = (a + segments, b + segments);
-                triangles.extend([[a, b, d], [a, d, c]]);
-            }
-        }
-        (vertices, triangles)
+    /// [`crate::mesh::Mesh::lathe`]'s closed surface of `profile` ((radius, height)) moved
+    /// to stand on `at`: its vertices and triangles.
+    fn lathe(at: DVec3, profile: &[(f32, f32)], segments: u32) -> (Vec<DVec3>, Vec<[u32; 3]>) {
+        let mesh = crate::mesh::Mesh::lathe(profile, segments).unwrap();
+        let vertices = mesh.points().into_iter().map(|p| at + p).collect();
+        (vertices, mesh.triangles().to_vec())
     }
 
     /// A cup-like body of revolution (off the origin) looks the same at every turn about
@@ -432,7 +417,7 @@ mod tests {
     #[test]
     fn turns_tell_a_handle_and_not_a_body_of_revolution() {
         let at = DVec3::new(0.02, 0.0, -0.015);
-        let profile = [(0.0, 0.03), (0.02, 0.035), (0.05, 0.038), (0.08, 0.04)];
+        let profile = [(0.03, 0.0), (0.035, 0.02), (0.038, 0.05), (0.04, 0.08)];
         // 50 segments: no multiple of 30 degrees turns the facets onto themselves.
         let (body, body_triangles) = lathe(at, &profile, 50);
         assert!(!turns_can_tell(&body, &body_triangles, DVec3::Y, at));
@@ -446,7 +431,7 @@ mod tests {
         // A handle: a small lathe (a ring of rings) standing on the body's side.
         let (handle, handle_triangles) = lathe(
             at + DVec3::new(0.05, 0.02, 0.0),
-            &[(0.0, 0.006), (0.02, 0.008), (0.04, 0.006)],
+            &[(0.006, 0.0), (0.008, 0.02), (0.006, 0.04)],
             16,
         );
         let offset = body.len() as u32;
