@@ -491,6 +491,7 @@ fn eval_measures_every_condition() {
         &settings,
         vkdr_app::eval::TrialSource::Rendered,
         |_, _| {},
+        |_, _| Ok(()),
     )
     .unwrap();
     common::assert_no_validation_errors(&ctx);

@@ -76,6 +76,7 @@ pub fn run(args: &Args) -> Result<()> {
             settings,
             vkdr_app::eval::TrialSource::Rendered,
             |_, _| {},
+            |_, _| Ok(()),
         )
     };
     let row = evaluate(&settings)?;

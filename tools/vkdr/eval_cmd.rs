@@ -480,6 +480,7 @@ fn evaluate_instance(
         |done, total| {
             eprint!("\r  {name:<22} trial {done}/{total}  ");
         },
+        |_, _| Ok(()),
     )?;
     eprintln!(
         "\r  {name:<22} oracle {:.2} mm (space optimum {:.2}), known pose {:.2} mm ({:.2}x), pose noise {:.2} mm ({:.2}x), {:.0} ms",

@@ -69,6 +69,12 @@ pub struct Args {
     /// pose. An object under it is a failed unit saying so; 0: every object.
     #[arg(long, allow_negative_numbers = true, default_value_t = 0.1)]
     min_visible: f64,
+    /// Write a picture of each unit into OUT/pictures (SCENE_IMAGE_K.png): its measured
+    /// depth, and its observed mask (blue) against the silhouette registered with the pose
+    /// known and from its first trial's pose noise (red; both magenta; unknown pixels
+    /// green), cropped around the object.
+    #[arg(long, conflicts_with = "merge")]
+    pictures: bool,
     #[command(flatten)]
     depth_loss: DepthLossArgs,
     #[command(flatten)]
@@ -204,6 +210,10 @@ pub fn run(args: &Args) -> Result<()> {
     let mut references: BTreeMap<u64, eval::Reference> = BTreeMap::new();
     let mut placed = Vec::new();
     let mut failures: Vec<String> = Vec::new();
+    let pictures = args.pictures.then(|| out.join("pictures"));
+    if let Some(dir) = &pictures {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
     for unit in &units {
         let target = &targets[unit.category];
         let c = target.category;
@@ -280,6 +290,15 @@ pub fn run(args: &Args) -> Result<()> {
                     reference: &references[&obj_id],
                 },
                 |done, total| eprint!("\r  {name:<22} trial {done}/{total}  "),
+                |trial, registered| match &pictures {
+                    Some(dir) if trial == 0 => {
+                        let file = dir.join(format!("{}.png", name.replace('/', "_")));
+                        let occlusion = base.depth.map(|d| d.occlusion);
+                        let picture = unit_picture(&ctx, &registrar, space, registered, occlusion)?;
+                        vkdr::io::write_png(&file, &image::DynamicImage::ImageRgb8(picture))
+                    }
+                    _ => Ok(()),
+                },
             )?)
         })();
         match evaluated {
@@ -605,6 +624,114 @@ fn check_visible_share(
 
 /// One object of a frame as a trial's scene: the visible mask, with the pixels the whole
 /// mask adds (hidden by something in front) unknown, and the frame's depth.
+/// A unit's picture, cropped to the observed mask and the registered silhouettes with half
+/// their box's size around: the measured depth (grey, near bright; black where none), then
+/// the observed mask (blue) against the silhouette registered with the pose known and then
+/// from the first trial's pose noise (red; both: magenta; unknown pixels green: hidden by
+/// the scene's whole mask, or by the depth's `occlusion` rule, a measured depth that many
+/// metres nearer than the registered surface outside the mask), each panel enlarged to at
+/// least 160 pixels high.
+fn unit_picture(
+    ctx: &Context,
+    registrar: &Registrar,
+    space: &ShapeSpace,
+    registered: &eval::Registered,
+    occlusion: Option<f64>,
+) -> vkdr::Result<image::RgbImage> {
+    let camera = registered.view.camera;
+    let (w, h) = (camera.width, camera.height);
+    let depth = registered.observation.depth.as_deref();
+    let measured = |k: usize| depth.map_or(0.0, |d| d[k]);
+    let mut silhouettes = Vec::new();
+    let mut observed = Vec::new();
+    for result in [&registered.known, &registered.noisy] {
+        let mesh = space.canonical.with_points(&result.vertices)?;
+        let view = View {
+            camera,
+            pose: result.pose,
+        };
+        let rendered = registrar.renderer().rasterizer().render(
+            ctx,
+            &mesh,
+            &[view],
+            vkdr::raster::Outputs::IdsBaryDepth,
+        )?;
+        let surface = rendered.depth.expect("IdsBaryDepth renders depth");
+        let surface = surface.as_slice().expect("a standard-layout image");
+        let mut mask = registered.observation.mask.clone();
+        if let Some(nearer) = occlusion.filter(|&o| o > 0.0) {
+            for (k, m) in mask.iter_mut().enumerate() {
+                let z = measured(k);
+                if *m == 0.0 && surface[k] > 0.0 && z > 0.0 && z < surface[k] - nearer as f32 {
+                    *m = vkdr::loss::UNKNOWN;
+                }
+            }
+        }
+        silhouettes.push(
+            surface
+                .iter()
+                .map(|&z| (z > 0.0) as u8 as f32)
+                .collect::<Vec<_>>(),
+        );
+        observed.push(mask);
+    }
+    let observed_any = &registered.observation.mask;
+    // The box of every pixel the mask or a silhouette covers, with a margin.
+    let covered = |k: usize| observed_any[k] > 0.0 || silhouettes.iter().any(|s| s[k] > 0.0);
+    let (mut x0, mut y0, mut x1, mut y1) = (w, h, 0, 0);
+    for y in 0..h {
+        for x in 0..w {
+            if covered((y * w + x) as usize) {
+                (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x + 1), y1.max(y + 1));
+            }
+        }
+    }
+    if x0 >= x1 {
+        (x0, y0, x1, y1) = (0, 0, w, h);
+    }
+    let margin = (x1 - x0).max(y1 - y0) / 2;
+    let (x0, y0) = (x0.saturating_sub(margin), y0.saturating_sub(margin));
+    let (x1, y1) = ((x1 + margin).min(w), (y1 + margin).min(h));
+    let (cw, ch) = (x1 - x0, y1 - y0);
+    let zoom = (160 / ch).max(1);
+    let (near, far) = (y0..y1)
+        .flat_map(|y| (x0..x1).map(move |x| (y * w + x) as usize))
+        .map(measured)
+        .filter(|&z| z > 0.0)
+        .fold((f32::INFINITY, 0.0f32), |(lo, hi), z| {
+            (lo.min(z), hi.max(z))
+        });
+    let span = (far - near).max(f32::EPSILON);
+    let panels: Vec<image::RgbImage> = silhouettes
+        .iter()
+        .zip(&observed)
+        .map(|(s, o)| crate::registration::overlay(o, s, w, h))
+        .collect();
+    Ok(image::RgbImage::from_fn(
+        3 * cw * zoom,
+        ch * zoom,
+        |px, py| {
+            let (panel, x, y) = (
+                px / (cw * zoom),
+                x0 + (px % (cw * zoom)) / zoom,
+                y0 + py / zoom,
+            );
+            match panel {
+                0 => {
+                    let z = measured((y * w + x) as usize);
+                    let grey = if z > 0.0 {
+                        (255.0 - 200.0 * (z - near) / span).round() as u8
+                    } else {
+                        0
+                    };
+                    image::Rgb([grey; 3])
+                }
+                p => *panels[p as usize - 1].get_pixel(x, y),
+            }
+        },
+    ))
+}
+
 fn frame_scene(frame: &Frame, object: &FrameObject, pose: Pose) -> Result<TrialScene> {
     let mut mask = object.visible.clone();
     if let Some(whole) = &object.whole {

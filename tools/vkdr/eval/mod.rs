@@ -34,7 +34,8 @@ mod trial;
 
 pub use scene::*;
 pub use settings::*;
-use trial::{register_trial, Measure, Registered};
+pub use trial::Registered;
+use trial::{register_trial, Measure};
 
 /// Mean over `a` of the distance to the nearest point of `b`.
 pub fn mean_nearest(a: &[DVec3], b: &[DVec3]) -> f64 {
@@ -247,7 +248,8 @@ pub fn as_seen(vertices: &[DVec3], registered: Pose, pose: Pose) -> Vec<DVec3> {
         .collect()
 }
 
-/// Evaluates one test instance against a built shape space.
+/// Evaluates one test instance against a built shape space; `on_trial` sees each trial's
+/// registrations (its number from 0) before they are measured.
 #[allow(clippy::too_many_arguments)] // the instance, its category's context, and progress
 pub fn evaluate_instance(
     ctx: &Context,
@@ -259,6 +261,7 @@ pub fn evaluate_instance(
     settings: &EvalSettings,
     source: TrialSource,
     mut progress: impl FnMut(usize, usize),
+    mut on_trial: impl FnMut(usize, &Registered) -> Result<()>,
 ) -> Result<Row> {
     // A test instance of another size: where the scale is optimised, the oracle and the
     // space optimum are those of the instance at its own size, scaled (the space with a
@@ -338,6 +341,7 @@ pub fn evaluate_instance(
             &mut known_once,
             &mut rng,
         )?;
+        on_trial(trial, &registered)?;
         let measured = measure.trial(&registered, oracle_vertices)?;
         let Registered {
             known,

@@ -133,12 +133,52 @@ fn occluded_noisy_frames_on_a_table() {
         .unwrap();
     }
     let one = dir.join("one");
-    ok(&[&run[..], &["--images", "000000/0", "--out", s(&one)]].concat());
+    ok(&[
+        &run[..],
+        &["--images", "000000/0", "--pictures", "--out", s(&one)],
+    ]
+    .concat());
     assert_eq!(
         self::rows(&one).len(),
         1,
         "the mapped object alone is a unit"
     );
+    // Its picture: the depth, then the mask against the known pose's and the pose
+    // noise's silhouettes, the occluder's half of the object unknown (green in them).
+    let pictures: Vec<_> = std::fs::read_dir(one.join("pictures")).unwrap().collect();
+    assert_eq!(pictures.len(), 1, "one picture a unit");
+    let picture = image::open(one.join("pictures").join("000000_000000_0.png"))
+        .unwrap()
+        .to_rgb8();
+    let (w, h) = picture.dimensions();
+    assert!(
+        w % 3 == 0 && h >= 160,
+        "{w} x {h}: three panels at least 160 high"
+    );
+    for panel in 0..3 {
+        let count = |what: fn(&image::Rgb<u8>) -> bool| {
+            (0..h)
+                .flat_map(|y| (panel * w / 3..(panel + 1) * w / 3).map(move |x| (x, y)))
+                .filter(|&(x, y)| what(picture.get_pixel(x, y)))
+                .count()
+        };
+        let grey = count(|p| p[0] == p[1] && p[1] == p[2] && p[0] > 40);
+        let both = count(|p| p[0] > 200 && p[2] > 200);
+        let unknown = count(|p| p[1] == 110);
+        if panel == 0 {
+            assert!(grey > 1000, "the depth panel: {grey} grey pixels");
+        } else {
+            let area = (w / 3 * h) as usize;
+            assert!(
+                both > area / 20,
+                "panel {panel}: {both} of {area} pixels both"
+            );
+            assert!(
+                unknown > area / 50,
+                "panel {panel}: {unknown} unknown pixels"
+            );
+        }
+    }
     let table = std::fs::read_to_string(one.join("table.md")).unwrap();
     assert!(
         table.contains("1 objects, each a unit; 1 object skipped, their obj_id not in")
