@@ -37,7 +37,8 @@ pub struct FrameObject {
     pub whole: Option<Vec<f32>>,
 }
 
-/// One image of a scene: its camera, depth (metres, 0 = none) and objects.
+/// One image of a scene: its camera, depth (metres, 0 = none) and objects, and where its
+/// colour image is (`rgb/IMAGE.png` or `.jpg`, where the scene has one: for pictures only).
 #[derive(Clone, Debug)]
 pub struct Frame {
     pub scene: String,
@@ -45,6 +46,7 @@ pub struct Frame {
     pub camera: Camera,
     pub depth: Vec<f32>,
     pub objects: Vec<FrameObject>,
+    pub rgb: Option<PathBuf>,
 }
 
 /// The scene folders under `dir`: `dir` itself where it holds `scene_gt.json`, else each
@@ -230,12 +232,17 @@ pub fn read_scene(dir: &Path) -> Result<Vec<Frame>> {
                 whole,
             });
         }
+        let rgb = ["png", "jpg"]
+            .iter()
+            .map(|ext| dir.join("rgb").join(format!("{image:06}.{ext}")))
+            .find(|path| path.is_file());
         frames.push(Frame {
             scene: scene.clone(),
             image,
             camera,
             depth,
             objects: frame_objects,
+            rgb,
         });
     }
     Ok(frames)

@@ -69,10 +69,10 @@ pub struct Args {
     /// pose. An object under it is a failed unit saying so; 0: every object.
     #[arg(long, allow_negative_numbers = true, default_value_t = 0.1)]
     min_visible: f64,
-    /// Write a picture of each unit into OUT/pictures (SCENE_IMAGE_K.png): its measured
-    /// depth, and its observed mask (blue) against the silhouette registered with the pose
-    /// known and from its first trial's pose noise (red; both magenta; unknown pixels
-    /// green), cropped around the object.
+    /// Write a picture of each unit into OUT/pictures (SCENE_IMAGE_K.png): the frame's
+    /// colour image (its measured depth where it has none), and its observed mask (blue)
+    /// against the silhouette registered with the pose known and from its first trial's
+    /// pose noise (red; both magenta; unknown pixels green), cropped around the object.
     #[arg(long, conflicts_with = "merge")]
     pictures: bool,
     #[command(flatten)]
@@ -294,7 +294,9 @@ pub fn run(args: &Args) -> Result<()> {
                     Some(dir) if trial == 0 => {
                         let file = dir.join(format!("{}.png", name.replace('/', "_")));
                         let occlusion = base.depth.map(|d| d.occlusion);
-                        let picture = unit_picture(&ctx, &registrar, space, registered, occlusion)?;
+                        let rgb = frame.rgb.as_deref();
+                        let picture =
+                            unit_picture(&ctx, &registrar, space, registered, occlusion, rgb)?;
                         vkdr::io::write_png(&file, &image::DynamicImage::ImageRgb8(picture))
                     }
                     _ => Ok(()),
@@ -625,21 +627,44 @@ fn check_visible_share(
 /// One object of a frame as a trial's scene: the visible mask, with the pixels the whole
 /// mask adds (hidden by something in front) unknown, and the frame's depth.
 /// A unit's picture, cropped to the observed mask and the registered silhouettes with half
-/// their box's size around: the measured depth (grey, near bright; black where none), then
+/// their box's size around: the frame's colour image `rgb` where it has one of its size,
+/// else the measured depth (grey, near bright; black where none), then
 /// the observed mask (blue) against the silhouette registered with the pose known and then
 /// from the first trial's pose noise (red; both: magenta; unknown pixels green: hidden by
 /// the scene's whole mask, or by the depth's `occlusion` rule, a measured depth that many
 /// metres nearer than the registered surface outside the mask), each panel enlarged to at
-/// least 160 pixels high.
+/// least 240 pixels high.
 fn unit_picture(
     ctx: &Context,
     registrar: &Registrar,
     space: &ShapeSpace,
     registered: &eval::Registered,
     occlusion: Option<f64>,
+    rgb: Option<&Path>,
 ) -> vkdr::Result<image::RgbImage> {
     let camera = registered.view.camera;
     let (w, h) = (camera.width, camera.height);
+    // A colour image that cannot be read, or of another size, leaves the depth's panel
+    // (the registration never reads it), with a warning.
+    let colour = rgb.and_then(|path| match image::open(path) {
+        Ok(image) if image.width() == w && image.height() == h => Some(image.to_rgb8()),
+        Ok(image) => {
+            eprintln!(
+                "\nwarning: {}: {}x{} pixels, the camera's are {w}x{h}; the picture shows the depth",
+                path.display(),
+                image.width(),
+                image.height()
+            );
+            None
+        }
+        Err(e) => {
+            eprintln!(
+                "\nwarning: {}: not an image ({e}); the picture shows the depth",
+                path.display()
+            );
+            None
+        }
+    });
     let depth = registered.observation.depth.as_deref();
     let measured = |k: usize| depth.map_or(0.0, |d| d[k]);
     let mut silhouettes = Vec::new();
@@ -693,7 +718,7 @@ fn unit_picture(
     let (x0, y0) = (x0.saturating_sub(margin), y0.saturating_sub(margin));
     let (x1, y1) = ((x1 + margin).min(w), (y1 + margin).min(h));
     let (cw, ch) = (x1 - x0, y1 - y0);
-    let zoom = (160 / ch).max(1);
+    let zoom = 240u32.div_ceil(ch).max(1);
     let (near, far) = (y0..y1)
         .flat_map(|y| (x0..x1).map(move |x| (y * w + x) as usize))
         .map(measured)
@@ -716,8 +741,9 @@ fn unit_picture(
                 x0 + (px % (cw * zoom)) / zoom,
                 y0 + py / zoom,
             );
-            match panel {
-                0 => {
+            match (panel, &colour) {
+                (0, Some(colour)) => *colour.get_pixel(x, y),
+                (0, None) => {
                     let z = measured((y * w + x) as usize);
                     let grey = if z > 0.0 {
                         (255.0 - 200.0 * (z - near) / span).round() as u8
@@ -726,7 +752,7 @@ fn unit_picture(
                     };
                     image::Rgb([grey; 3])
                 }
-                p => *panels[p as usize - 1].get_pixel(x, y),
+                (p, _) => *panels[p as usize - 1].get_pixel(x, y),
             }
         },
     ))
@@ -903,6 +929,7 @@ pub fn generate(args: &GenArgs) -> Result<()> {
                     image,
                     camera: scene.view.camera,
                     depth,
+                    rgb: None,
                     objects: vec![FrameObject {
                         gt_index: 0,
                         obj_id,

@@ -27,6 +27,7 @@ fn frame(camera: Camera) -> Frame {
         image: 3,
         camera,
         depth: vec![0.8; n],
+        rgb: None,
         objects: vec![FrameObject {
             gt_index: 0,
             obj_id: 7,

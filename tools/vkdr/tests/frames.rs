@@ -152,8 +152,8 @@ fn occluded_noisy_frames_on_a_table() {
         .to_rgb8();
     let (w, h) = picture.dimensions();
     assert!(
-        w % 3 == 0 && h >= 160,
-        "{w} x {h}: three panels at least 160 high"
+        w % 3 == 0 && h >= 240,
+        "{w} x {h}: three panels at least 240 high"
     );
     for panel in 0..3 {
         let count = |what: fn(&image::Rgb<u8>) -> bool| {

@@ -69,11 +69,38 @@ fn a_mug_a_can_and_a_bottle_from_pose_noise() {
         "000000/1,000001/1",
         "--trials",
         "2",
+        "--pictures",
         "--out",
         s(&out),
     ]);
     let table = table(&out);
     assert!(table["failures"].as_array().unwrap().is_empty());
+    // A picture of each unit, its first panel the frame's colour image (not the depth's
+    // grey: the mug is red).
+    let mut pictures: Vec<String> = std::fs::read_dir(out.join("pictures"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    pictures.sort();
+    assert_eq!(
+        pictures,
+        [
+            "000000_000001_0.png",
+            "000001_000001_0.png",
+            "000001_000001_1.png"
+        ]
+    );
+    let mug = image::open(out.join("pictures").join(&pictures[0]))
+        .unwrap()
+        .to_rgb8();
+    let first = (0..mug.height())
+        .flat_map(|y| (0..mug.width() / 3).map(move |x| (x, y)))
+        .filter(|&(x, y)| {
+            let p = mug.get_pixel(x, y);
+            p[0] as i32 - p[1] as i32 > 60
+        })
+        .count();
+    assert!(first > 1000, "{first} red pixels in the colour panel");
     // Measured (lavapipe, 3 trials, docs/evaluation.md): mug as seen 2.54 mm, 1.13x its
     // known-pose error, tilt 0.8 deg, z 1.5 mm; can size 1.026, z 4.8 mm, as seen 1.9 mm
     // (27.9 mm and size 0.65 with the scale fixed); bottle as seen 15.5 mm. Asserted with
