@@ -624,16 +624,14 @@ fn check_visible_share(
     Ok(())
 }
 
-/// One object of a frame as a trial's scene: the visible mask, with the pixels the whole
-/// mask adds (hidden by something in front) unknown, and the frame's depth.
 /// A unit's picture, cropped to the observed mask and the registered silhouettes with half
 /// their box's size around: the frame's colour image `rgb` where it has one of its size,
-/// else the measured depth (grey, near bright; black where none), then
-/// the observed mask (blue) against the silhouette registered with the pose known and then
-/// from the first trial's pose noise (red; both: magenta; unknown pixels green: hidden by
-/// the scene's whole mask, or by the depth's `occlusion` rule, a measured depth that many
-/// metres nearer than the registered surface outside the mask), each panel enlarged to at
-/// least 240 pixels high.
+/// else the measured depth (grey, near bright; black where none), then the observed mask
+/// (blue) against the silhouette registered with the pose known and then from the first
+/// trial's pose noise (red; both: magenta; unknown pixels green: hidden by the scene's
+/// whole mask, or by the depth's `occlusion` rule, a measured depth that many metres
+/// nearer than the registered surface outside the mask), each panel enlarged to at least
+/// 240 pixels high.
 fn unit_picture(
     ctx: &Context,
     registrar: &Registrar,
@@ -719,14 +717,19 @@ fn unit_picture(
     let (x1, y1) = ((x1 + margin).min(w), (y1 + margin).min(h));
     let (cw, ch) = (x1 - x0, y1 - y0);
     let zoom = 240u32.div_ceil(ch).max(1);
-    let (near, far) = (y0..y1)
-        .flat_map(|y| (x0..x1).map(move |x| (y * w + x) as usize))
-        .map(measured)
-        .filter(|&z| z > 0.0)
-        .fold((f32::INFINITY, 0.0f32), |(lo, hi), z| {
-            (lo.min(z), hi.max(z))
-        });
-    let span = (far - near).max(f32::EPSILON);
+    // The first panel, in the crop's pixels: the colour image, else the measured depth.
+    let first = match colour {
+        Some(colour) => image::imageops::crop_imm(&colour, x0, y0, cw, ch).to_image(),
+        None => {
+            let crop: Vec<f32> = (y0..y1)
+                .flat_map(|y| (x0..x1).map(move |x| (y * w + x) as usize))
+                .map(measured)
+                .collect();
+            let crop = ndarray::ArrayView2::from_shape((ch as usize, cw as usize), &crop)
+                .expect("the crop's pixels");
+            crate::pictures::depth(crop).to_rgb8()
+        }
+    };
     let panels: Vec<image::RgbImage> = silhouettes
         .iter()
         .zip(&observed)
@@ -736,28 +739,17 @@ fn unit_picture(
         3 * cw * zoom,
         ch * zoom,
         |px, py| {
-            let (panel, x, y) = (
-                px / (cw * zoom),
-                x0 + (px % (cw * zoom)) / zoom,
-                y0 + py / zoom,
-            );
-            match (panel, &colour) {
-                (0, Some(colour)) => *colour.get_pixel(x, y),
-                (0, None) => {
-                    let z = measured((y * w + x) as usize);
-                    let grey = if z > 0.0 {
-                        (255.0 - 200.0 * (z - near) / span).round() as u8
-                    } else {
-                        0
-                    };
-                    image::Rgb([grey; 3])
-                }
-                (p, _) => *panels[p as usize - 1].get_pixel(x, y),
+            let (panel, x, y) = (px / (cw * zoom), (px % (cw * zoom)) / zoom, py / zoom);
+            match panel {
+                0 => *first.get_pixel(x, y),
+                p => *panels[p as usize - 1].get_pixel(x0 + x, y0 + y),
             }
         },
     ))
 }
 
+/// One object of a frame as a trial's scene: the visible mask, with the pixels the whole
+/// mask adds (hidden by something in front) unknown, and the frame's depth.
 fn frame_scene(frame: &Frame, object: &FrameObject, pose: Pose) -> Result<TrialScene> {
     let mut mask = object.visible.clone();
     if let Some(whole) = &object.whole {
